@@ -58,7 +58,8 @@ from .constrained_update import scalar_update
 from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
 from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
-from .published_heading import PublishedHeading
+from .published_heading import FOLLOWING, PublishedHeading, published_offset_step, published_reset
+from .slewed_yaw_kernel import slew_step
 from .start_rerun import StartRecording, keep_iron, put_back_iron, start_heading
 from .yaw_reset import restart_uncorrelated
 from .rotations import quat_to_dcm
@@ -511,9 +512,7 @@ class Ins:
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
-        # a run of a block's samples through the kernel in one call (step_block), each sample's outputs and flags
-        # kept for the published heading's per-sample slew
-        self._block_outs = np.zeros((_BLOCK_MAX, self._out_flat.shape[0]))
+        # a run of a block's samples through the kernel in one call (step_block), each sample's flags kept
         self._block_flags = np.zeros(_BLOCK_MAX, np.int64)
         self._step_block = fast_step_block(self._step_block_args_example())
         self._load_python_called_kernels()
@@ -531,7 +530,6 @@ class Ins:
         # the magnetometer's calibration-error states: the heading harmonics and the frame tilt (mag_error_states.py)
         self._mag_errors = MagErrorStates(self._x, self._P, self._par, self._learned_iron)
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
-        self._published_since_init = False
         self._view = BuiltEstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
         # before the first fix the calibration is checked by the circle its levelled field sweeps in turns
         self._field_circle = FieldCircleCheck(FieldCircleParams(mag_noise_ut=self.params.mag_noise_ut))
@@ -558,8 +556,8 @@ class Ins:
         x, P, hist, par = self._step_args_example()[:4]
         out = np.zeros(1, core.INS_OUT_DTYPE)
         gsf = _one_record_array(new_gsf_state(GsfParams(), 0.0))
-        return (x, P, hist, par, np.zeros(1), np.zeros((1, 9)), np.zeros(1, np.int64), 0.0, out, out.view(np.float64),
-                gsf, self._gsf_par_arr, np.zeros_like(self._block_outs), np.zeros_like(self._block_flags))
+        return (x, P, hist, par, np.zeros(1), np.zeros((1, 9)), np.zeros(1, np.int64), 0.0, out, gsf,
+                self._gsf_par_arr, np.zeros_like(self._block_flags), PublishedHeading(1.0).state, 1.0)
 
     def _load_python_called_kernels(self) -> None:
         """Load the kernels this class calls from Python (numba's on-disk cache) for the types it calls them with,
@@ -580,7 +578,10 @@ class Ins:
                 (core._correct_history, (self._hist, x, 0.0, dx, 0.0, 0.0, 0.0)),
                 (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
                 (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
-                (input_validity, (0,) + (0.0,) * 9)):
+                (input_validity, (0,) + (0.0,) * 9),
+                (published_offset_step, (PublishedHeading(1.0).state, 1.0) + (0.0,) * 7),
+                (published_reset, (PublishedHeading(1.0).state,)),
+                (slew_step, (0.0,) * 5)):
             kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
         _PYTHON_CALLED_KERNELS_LOADED = True
 
@@ -855,18 +856,22 @@ class Ins:
         stop_t_s = float(queue[0].t_s) if queue else math.inf
         if self._field_circle_on and not self._heading.ever_aided:
             stop_t_s = min(stop_t_s, self._field_circle.due_t_s)
+        published = self._published
         k = self._step_block(self._x_arr, self._P, self._hist, self._par_arr, t_s, rows, sample_flags, stop_t_s,
-                             self._out_arr, self._out_flat, self._gsf_arr, self._gsf_par_arr, self._block_outs,
-                             self._block_flags)
+                             self._out_arr, self._gsf_arr, self._gsf_par_arr, self._block_flags, published.state,
+                             published.max_rate_rad_s)
         if not k:
             return [], self._view
         flags = self._block_flags[:k].tolist()
-        outs = self._block_outs[:k, _OUT_RATE_TO_EULER].tolist()
-        times = t_s[:k].tolist()
-        after = self._after_step
-        for j in range(k):
-            flags[j] = after(times[j], flags[j], outs[j])
-        self._view.set(times[-1], flags[-1], True)
+        # what `_after_step` does besides the slew (the kernel's): the flags held for the next estimate go with the
+        # first sample, the first aided sample is told to the heading checks (which only the field-circle check,
+        # run before the first fix and so never in a run then, reads at a sample)
+        if self._pending_flags:
+            flags[0] |= self._pending_flags
+            self._pending_flags = 0
+        if not self._heading.ever_aided and any(f & _F_GNSS_AIDED for f in flags):
+            self._heading.gnss_aided()
+        self._view.set(float(t_s[k - 1]), flags[-1], True)
         return flags, self._view
 
     # ----------------------------------------------------------------------- GNSS
@@ -1054,7 +1059,7 @@ class Ins:
         hypotheses and only moves its clock on."""
         self._intake.drop_queued()
         self._published.reset()
-        self._published_since_init = False
+        self._published.state[FOLLOWING] = 0.0
         self._fusion.restart()
         if not self._reinit_pending or not self.params.gnss_yaw:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
@@ -1068,14 +1073,14 @@ class Ins:
 
     def _stepped(self, t_s: float, f: int) -> EstimateView:
         """What moves with every sample (`_after_step`); the estimate itself is built on demand (`_build_estimate`)."""
-        self._view.set(t_s, self._after_step(t_s, f, None), True)
+        self._view.set(t_s, self._after_step(t_s, f), True)
         return self._view
 
-    def _after_step(self, t_s: float, f: int, r: list | None) -> int:
-        """What follows every stepped sample in Python, given its flags and its outputs from rate to Euler angles
-        (`r`; None: the kernel's latest, read here only when needed): the flags held for the next estimate merged,
-        the first aided sample told to the heading checks, the published-heading slew (it integrates over sample
-        time, so what is published does not depend on how often an estimate is built). Returns the flags."""
+    def _after_step(self, t_s: float, f: int) -> int:
+        """What follows every stepped sample, given its flags: the flags held for the next estimate merged, the first
+        aided sample told to the heading checks, the published-heading slew (it integrates over sample time, so what
+        is published does not depend on how often an estimate is built; a run of samples steps it in its kernel,
+        ins_step_block.py). Returns the flags."""
         if self._pending_flags:
             f |= self._pending_flags
             self._pending_flags = 0
@@ -1083,11 +1088,11 @@ class Ins:
             self._heading.gnss_aided()
         # nothing published since the filter started (INITIALISING from its start): the published heading follows
         # the filter, as _restart_companions left it reset (it moves only in `update`, not called until then)
-        if self._published_since_init or not f & _F_INITIALISING:
-            if r is None:
-                r = self._out_flat[_OUT_RATE_TO_EULER].tolist()  # one call: rate first, then σ, …, Euler angles last
-            self._published.update(t_s, r[-1], r[-3], r[-2], r, r[_STEP_SIGMA_YAW])
-            self._published_since_init = True
+        published = self._published
+        if published.state[FOLLOWING] or not f & _F_INITIALISING:
+            r = self._out_flat[_OUT_RATE_TO_EULER].tolist()     # one call: rate first, then σ, …, Euler angles last
+            published.update(t_s, r[-1], r[-3], r[-2], r, r[_STEP_SIGMA_YAW])
+            published.state[FOLLOWING] = 1.0
         return f
 
     def _build_estimate(self, t_s: float, f: int, initialised: bool) -> AttitudeEstimate:
