@@ -21,25 +21,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from support.accel_positions import position_holds  # noqa: E402
+from support.accel_positions import holds_recording  # noqa: E402
 
 from ahrsd.cli.main import main as ahrsd  # noqa: E402
-from ahrsd.core.sample import make_sample  # noqa: E402
-from ahrsd.drivers.recording import RecordingWriter  # noqa: E402
-from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate  # noqa: E402
+from ahrsd.simulation import DEFAULT_SITE  # noqa: E402
 
 MG = 9.80665e-3
-
-
-def write(path: Path, hold_s: float, seed: int) -> np.ndarray:
-    scenario, windows, _ = position_holds(24, hold_s=hold_s, slew_s=1.0)
-    errors = SensorErrors.adis16405(seed=seed)
-    block = simulate(scenario, windows[-1][1], rate_hz=100.0, seed=seed, errors=errors)
-    with RecordingWriter(path, extra_columns=("temp_c",)) as w:
-        for i in range(len(block)):
-            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]),
-                    temp_c=block.temp_c[i])
-    return errors.accel_bias_m_s2
 
 
 def calibrate(path: Path, *extra: str) -> dict:
@@ -64,7 +51,7 @@ def main() -> int:
     for hold in args.holds:
         for seed in args.seeds:
             path = d / f"holds-{hold:g}s-seed{seed}.csv"
-            bias = write(path, hold, seed)
+            bias = holds_recording(path, hold, seed)[2].accel_bias_m_s2
             cells = []
             for extra in ((), ("--min-still-s", "1")):
                 r = calibrate(path, *extra)

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from ins_truth import DECLINATION, gnss_fixes, simulated_run  # noqa: E402
+from ins_truth import DECLINATION, gnss_fixes, simulated_run, with_fixes_offered  # noqa: E402
 
 from ahrsd.calibration.models import Calibration, MagModel  # noqa: E402
 from ahrsd.core.sample import SampleFlags, make_sample  # noqa: E402
@@ -50,11 +50,8 @@ def main() -> None:
     ins.set_mag_calibration_sigma(CLAIMED_SIGMA_RAD)
     t = run.truth.t_s
     err, sigma = np.zeros(len(t)), np.zeros(len(t))
-    fi, last, swapped = 0, None, False
-    for k in range(len(t)):
-        while fi < len(fixes) and fixes[fi][0] <= t[k]:
-            ins.update_gnss(fixes[fi][1])
-            fi += 1
+    last, swapped = None, False
+    for k in with_fixes_offered(t, fixes, ins.update_gnss):
         if not swapped and t[k] >= swap and last is not None:
             swapped = True
             change = calibration_heading_change_rad(old, new, raw[k - 1], None, last.roll_rad, last.pitch_rad,

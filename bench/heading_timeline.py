@@ -36,8 +36,8 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.vehicle_accuracy import (HONESTY_IRONS, IRON_STEP_AT, SETTLE_S, estimates_in_arrival_order,  # noqa: E402
-                                    honesty_figures, honesty_site, honesty_site_arg, simulate_vehicle,
-                                    tilt_heading_errors_deg)
+                                    euler_errors_deg, honesty_figures, honesty_site, honesty_site_arg,
+                                    simulate_vehicle, tilt_heading_errors_deg)
 
 EVERY = 8          # keep every 8th sample (25 Hz of the 200 SPS runs)
 TURN_DEG_S = 5.0   # --consistency: the vehicle is turning while its true heading rate is above this
@@ -54,8 +54,6 @@ def figures_from(t_s, heading_err_deg, tilt_err_deg, sigma_yaw_deg, from_s: floa
 
 
 def one_run(job) -> tuple:
-    from scipy.spatial.transform import Rotation
-
     from ahrsd.estimator.ins import Ins
     from ahrsd.simulation import SensorErrors
 
@@ -86,8 +84,7 @@ def one_run(job) -> tuple:
             j += 1
     tk = t[keep]
     tilt, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz[keep], run.declination_rad)
-    eul = lambda qq: Rotation.from_quat(qq[:, [1, 2, 3, 0]]).as_euler("ZYX", degrees=True)  # noqa: E731
-    rp = (eul(q) - eul(run.truth_q_wxyz[keep]) + 180.0) % 360.0 - 180.0
+    rp = euler_errors_deg(q, run.truth_q_wxyz[keep])
     ba_err = ba - SensorErrors.adis16405(seed).accel_bias_m_s2
     late, honest = tk >= 180.0, tk >= 30.0
     after = tk >= IRON_STEP_AT * seconds + 120.0      # the iron-step case: from 120 s after the step

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from ins_truth import DECLINATION, gnss_fixes, simulated_run  # noqa: E402
+from ins_truth import DECLINATION, gnss_fixes, simulated_run, with_fixes_offered  # noqa: E402
 
 from ahrsd.calibration.models import Calibration, MagModel  # noqa: E402
 from ahrsd.core.sample import SampleFlags, make_sample  # noqa: E402
@@ -75,11 +75,8 @@ def main() -> None:
     ins.set_mag_calibration_sigma(CLAIMED_SIGMA_RAD)
     est = np.zeros((len(t), 3))
     sigma = np.zeros((len(t), 3))
-    fi, last, swapped = 0, None, args.swap_s is None
-    for k in range(len(t)):
-        while fi < len(fixes) and fixes[fi][0] <= t[k]:
-            ins.update_gnss(fixes[fi][1])
-            fi += 1
+    last, swapped = None, args.swap_s is None
+    for k in with_fixes_offered(t, fixes, ins.update_gnss):
         if not swapped and t[k] >= args.swap_s and last is not None:
             swapped = True
             change = calibration_heading_change_rad(old, new, run.block.mag_ut[k - 1], None, last.roll_rad,

@@ -113,7 +113,8 @@ def _profile_lines(path: str) -> list[str]:
     import pstats
 
     stats = pstats.Stats(path).stats
-    reads = sum(v[1] for k, v in stats.items() if k[2] == "read_sample")
+    # a read is a call of the chip source's read_one (the common read calls no read_sample: drivers.chip_source)
+    reads = sum(v[1] for k, v in stats.items() if k[0].endswith("chip_source.py") and k[2] == "read_one")
     time_s: dict[str, float] = {}
     calls: dict[str, int] = {}
     for (filename, _line, function), (_cc, ncalls, tottime, _ct, callers) in stats.items():

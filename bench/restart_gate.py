@@ -2,7 +2,8 @@
 0.5°), anywhere in its scenario — in a turn, heeled, banked — at a high dip: does the monitor reject the good
 magnetometer, when, and what does the heading cost? Per run: the first rejection (s after the start, "-" for
 none), the rejections and yaw resets (`Ins.heading_report`), the true-heading RMS over the first 30 s and after,
-the share of heading errors beyond 3σ after 30 s. The gate's share of the filter's own attitude error (docs/gnss.md
+the share of heading errors beyond 3σ after 30 s and (last column, `h>3σ e`; with `--tilt` the tilt's, `t>3σ e`)
+over the first 30 s. The gate's share of the filter's own attitude error (docs/gnss.md
 "gate37") is what this was built to weigh; it also measures a start in a hard turn, which levelled the turn's
 lean far beyond the stated tilt σ until the start levelled on the rotation axis (docs/estimator.md "turn37").
 
@@ -109,7 +110,9 @@ def one_run(scenario: str, site: str, seed: int, start_s: float, seconds: float,
             "tilt_early": float(np.sqrt(np.mean(tilt[early] ** 2))), "tilt_late": float(np.sqrt(np.mean(tilt[late] ** 2))),
             "tilt_beyond": float(np.mean(tilt[late] > 3.0 * np.degrees(sigma_tilt[late]))),
             "bank_first_valid": bank_first_valid, "bank_worst_deg": float(np.degrees(bank_worst)),
-            "bank_beyond": bank_beyond / bank_valid_n if bank_valid_n else 0.0}
+            "bank_beyond": bank_beyond / bank_valid_n if bank_valid_n else 0.0,
+            "beyond_early": float(np.mean(np.abs(hdg[early]) > 3.0 * np.degrees(sigma[early]))),
+            "tilt_beyond_early": float(np.mean(tilt[early] > 3.0 * np.degrees(sigma_tilt[early])))}
 
 
 def main(argv=None) -> None:
@@ -134,7 +137,8 @@ def main(argv=None) -> None:
           f"after the start), rejections, yaw resets, heading RMS before / after {SETTLE_S:g} s (deg), beyond 3σ after")
     print(f"{'site':>10} {'start':>6} {'seed':>4} {'first':>6} {'rej':>3} {'rst':>3} {'early':>7} {'late':>7} "
           f"{'>3σ':>6}" + (f" {'tilt e':>7} {'tilt l':>7} {'>3σ':>6}" if args.tilt else "")
-          + (f" {'bank v':>6} {'worst':>7} {'>3σ':>6}" if args.bank else ""))
+          + (f" {'bank v':>6} {'worst':>7} {'>3σ':>6}" if args.bank else "")
+          + f" {'h>3σ e':>6}" + (f" {'t>3σ e':>6}" if args.tilt else ""))
     rejected = 0
     for site in args.sites:
         for start in args.starts:
@@ -146,7 +150,8 @@ def main(argv=None) -> None:
                       f"{r['early']:7.2f} {r['late']:7.2f} {100 * r['beyond']:5.1f}%"
                       + (f" {r['tilt_early']:7.2f} {r['tilt_late']:7.2f} {100 * r['tilt_beyond']:5.1f}%" if args.tilt else "")
                       + (f" {'-' if r['bank_first_valid'] is None else format(r['bank_first_valid'], '.1f'):>6} "
-                         f"{r['bank_worst_deg']:7.2f} {100 * r['bank_beyond']:5.1f}%" if args.bank else ""),
+                         f"{r['bank_worst_deg']:7.2f} {100 * r['bank_beyond']:5.1f}%" if args.bank else "")
+                      + f" {100 * r['beyond_early']:5.1f}%" + (f" {100 * r['tilt_beyond_early']:5.1f}%" if args.tilt else ""),
                       flush=True)
     print(f"# runs with a rejection: {rejected} of {len(args.sites) * len(args.starts) * len(args.seeds)}")
 

@@ -43,8 +43,8 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.vehicle_accuracy import (HONESTY_IRONS, honesty_site, honesty_site_arg, simulate_vehicle,  # noqa: E402
-                                    tilt_heading_errors_deg)
+from bench.vehicle_accuracy import (HONESTY_IRONS, euler_errors_deg, honesty_site, honesty_site_arg,  # noqa: E402
+                                    simulate_vehicle, tilt_heading_errors_deg)
 
 EVERY = 8
 ROWS = ("defaults", "m_xz,m_yz truth", "accel bias truth", "sensor m = 0", "no m states", "neither", "calibrated",
@@ -113,8 +113,6 @@ def _population(n: int) -> int:
 
 
 def one_run(job) -> tuple:
-    from scipy.spatial.transform import Rotation
-
     from ahrsd.core.sample import SampleFlags, make_sample
     from ahrsd.estimator import ins_core as core
     from ahrsd.estimator.ins import Ins
@@ -166,8 +164,7 @@ def one_run(job) -> tuple:
             j += 1
     tk = t[keep]
     tilt, hdg = tilt_heading_errors_deg(q, run.truth_q_wxyz[keep], run.declination_rad)
-    eul = lambda qq: Rotation.from_quat(qq[:, [1, 2, 3, 0]]).as_euler("ZYX", degrees=True)  # noqa: E731
-    rp = (eul(q) - eul(run.truth_q_wxyz[keep]) + 180.0) % 360.0 - 180.0
+    rp = euler_errors_deg(q, run.truth_q_wxyz[keep])
     late, honest, early = tk >= 180.0, tk >= 30.0, (tk >= 30.0) & (tk < 90.0)
     p = est.params
     priors = {k: getattr(p, k) for k in ("init_accel_bias_sigma_m_s2", "accel_axes_tilt_sigma_rad",

@@ -82,6 +82,13 @@ def tilt_heading_errors_deg(q_mag_est, q_truth, declination_rad):
     return tilt, np.degrees((dyaw + np.pi) % (2 * np.pi) - np.pi)
 
 
+def euler_errors_deg(q_est_wxyz, q_truth_wxyz) -> np.ndarray:
+    """(n, 3) ZYX Euler angle errors (yaw, pitch, roll), degrees wrapped to [−180, 180): the estimate's angles less
+    the truth's, both as given (no declination turned in). scipy only."""
+    est = _rot(q_est_wxyz).as_euler("ZYX", degrees=True)
+    return (est - _rot(q_truth_wxyz).as_euler("ZYX", degrees=True) + 180.0) % 360.0 - 180.0
+
+
 def longest_turn_after(t_s, q_wxyz, t_from_s: float, t_last_start_s: float, min_rate_deg_s: float = 1.0):
     """Start of the longest turn (truth heading rate above min_rate) that starts in [t_from_s, t_last_start_s],
     s; None when there is none."""

@@ -349,7 +349,16 @@ class Adis16405:
             the driver's own counter is used (see `_advance_counter`).
         Raises FrameError (counted) for frames that cannot be trusted, BusError when the bus fails.
         """
-        rx = self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0)
+        return self.decode_burst(self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0), stamp)
+
+    def read_burst(self) -> bytes:
+        """One burst transfer: the frame's bytes, undecoded (drivers.chip_source's common read decodes the clean
+        fresh frame itself and hands any other to `decode_burst`)."""
+        return self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0)
+
+    def decode_burst(self, rx: bytes, stamp: Callable[[int], tuple[float, int, int]] | None = None
+                     ) -> ImuSample | SampleRecord:
+        """`read_sample` of the burst frame `rx` (read by `read_burst`): every check, the flags, the sample."""
         w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, _ = _UNPACK_BURST(rx, 2)
         # ND/EA must agree across SUPPLY_OUT and the nine sensor words (TEMP_OUT/AUX_ADC are not checked:
         # their flag bits are not relied on, so a hardware difference there cannot reject every frame)

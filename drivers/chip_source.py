@@ -11,8 +11,11 @@ import logging
 import math
 import time
 
+from operator import ge as _ge
+
 from ahrsd.core.sample import ImuSample, SampleFlags
-from ahrsd.drivers.adis16405 import Adis16405
+from ahrsd.drivers import registers as R
+from ahrsd.drivers.adis16405 import _SUPPLY_MAX_LSB, _SUPPLY_MIN_LSB, _UNPACK_BURST, Adis16405
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.sample_timer import SampleTimer
 from ahrsd.drivers.source_interface import LiveSource
@@ -35,6 +38,8 @@ INDEX_PROBE_PERIODS = 0.5
 # a burst that took a period or longer (preempted inside the transfer) is not checked: a register read after it
 # settles its index only if burst and register read together end within a period
 CHECKABLE_READ_PERIODS = 1.0
+_NEW_DATA = int(SampleFlags.NEW_DATA)
+_ND, _EA, _FLAG_BITS = R.ND, R.EA, R.ND | R.EA
 
 
 class ChipSource(LiveSource):
@@ -58,6 +63,8 @@ class ChipSource(LiveSource):
         self.clock = clock
         self.sample_rate_hz = float(driver.sample_rate_hz)     # the chip's, as read back (its default until start)
         self.timer = timer if timer is not None else SampleTimer(1.0 / self.sample_rate_hz)
+        # the common read steps the timer itself (drivers.data_ready's timer counts edges instead)
+        self._common_timer = isinstance(self.timer, SampleTimer)
         self.stale_reads = 0
         self.lost_samples = 0
         self._read_start = 0.0
@@ -65,18 +72,74 @@ class ChipSource(LiveSource):
     def read_one(self, now: float) -> ImuSample | None:
         """One burst read at host time `now`: the new sample (t_s on the sample grid in CLOCK_MONOTONIC
         seconds, counter = sample index, GAP_BEFORE after lost samples), or None when the chip has no new
-        sample yet (ND clear). Raises FrameError (one corrupt frame) or BusError."""
+        sample yet (ND clear). Raises FrameError (one corrupt frame) or BusError.
+
+        The common read of the reader process (records, a SampleTimer with its first sample taken) is decoded
+        here in one function (`_common_read`): a Python frame less is CPU less after every wake's cold caches
+        (docs/daemon.md "Performance"). Any other read is the driver's and the timer's general path."""
         clock = self.clock
         if clock is not None:
             now = max(now, clock())
         self._read_start = now
+        driver = self.driver
         try:
-            s = self.driver.read_sample(self._stamp)
+            if driver.samples_as_records and self._common_timer and self.timer.hi is not None:
+                s = self._common_read(driver, now)
+            else:
+                s = driver.read_sample(self._stamp)
         except FrameError:
             # the rejected frame may have carried (and cleared) a new sample
             self.timer.may_have_consumed(now if clock is None else clock())
             raise
         return None if _int_and(s.flags, _STALE) else s
+
+    def _common_read(self, driver: Adis16405, now: float):
+        """The read of a clean fresh frame whose index the host clock settles (ND in every word, no EA, supply
+        and every axis within bounds, no burst-bug suspicion, the driver not holding a newer sample's ND, a
+        transfer shorter than CHECKABLE_READ_PERIODS and a unique index): the checks, the timer's step and the
+        record in one function, with the driver's bounds and the timer's arithmetic (fresh_after_first), the
+        stuck-axis check and the record (Adis16405._check_stuck, _sample) shared. Decides before it changes
+        anything; any other frame goes, as read, to the driver's general path (Adis16405.decode_burst with
+        `_stamp`), which gives the same sample, counters and timer state (tests/test_common_read.py,
+        tools/reader_digest.py)."""
+        rx = driver.read_burst()
+        if driver.newer_sample_taken:
+            return driver.decode_burst(rx, self._stamp)
+        w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, _ = _UNPACK_BURST(rx, 2)
+        supply = w0 & 0x3FFF
+        # ND in every checked word and EA in none (Adis16405.decode_burst's agreement check, its common answer)
+        if ((w0 & w1 & w2 & w3 & w4 & w5 & w6 & w7 & w8 & w9 & _FLAG_BITS) != _ND
+                or (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & _EA
+                or not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB):
+            return driver.decode_burst(rx, self._stamp)
+        gx = ((w1 & 0x3FFF) ^ 0x2000) - 0x2000
+        raw9 = [gx, ((w2 & 0x3FFF) ^ 0x2000) - 0x2000, ((w3 & 0x3FFF) ^ 0x2000) - 0x2000,
+                ((w4 & 0x3FFF) ^ 0x2000) - 0x2000, ((w5 & 0x3FFF) ^ 0x2000) - 0x2000,
+                ((w6 & 0x3FFF) ^ 0x2000) - 0x2000, ((w7 & 0x3FFF) ^ 0x2000) - 0x2000,
+                ((w8 & 0x3FFF) ^ 0x2000) - 0x2000, ((w9 & 0x3FFF) ^ 0x2000) - 0x2000]
+        prev_gx = driver._prev_gx
+        # the driver's burst-bug suspicion (decode_burst) and full scale (beyond which lies the plausibility bound)
+        if ((not (w1 & 0x2000) and (gx > driver._gyro_range_lsb or (gx - prev_gx > driver._jump_lsb
+                                                                    if prev_gx is not None else gx > driver._jump_lsb)))
+                or any(map(_ge, map(abs, raw9), driver._full_scale9))):
+            return driver.decode_burst(rx, self._stamp)
+        clock, timer = self.clock, self.timer
+        end = now if clock is None else clock()
+        out = None if end - now >= CHECKABLE_READ_PERIODS * timer.period_s else timer.fresh_after_first(now, end, True)
+        if out is None:
+            return driver.decode_burst(rx, self._stamp)
+        # from here on the read is taken: the driver's state as decode_burst leaves it after a clean fresh frame
+        driver.counters["new_samples"] += 1
+        driver._burst_supply_lsb = supply
+        driver._prev_gx = gx
+        flags = _NEW_DATA | driver._check_stuck(raw9)
+        if _int_and(flags, _MORE_READS):
+            timer.may_have_consumed(end)
+        t_s, k, lost = out
+        if lost:
+            self.lost_samples += lost
+            flags |= _GAP_BEFORE
+        return driver._sample(t_s, k, raw9, w10, supply, flags, 0)
 
     def _stamp(self, flags: int) -> tuple[float, int, int]:
         """Called by the driver once the frame's flags are known: (t_s, index, extra flags) of the sample."""

@@ -86,12 +86,7 @@ class SampleTimer:
                 self.ambiguous_reads += 1
                 self.ambiguous_samples += 1
             return read_time, 0, 0
-        self._leak(read_time)
-        k, k_min = self._index_range(read_time, end, self.lo, self.hi)
-        if k > k_min:
-            self.ambiguous_reads += 1
-            self.ambiguous_samples += k - k_min
-        return self._take(k, end)
+        return self.fresh_after_first(read_time, end, certain_only=False)
 
     def fresh_if_certain(self, read_time: float, read_end: float) -> tuple[float, int, int] | None:
         """`fresh(read_time, read_end)` when `index_uncertain(read_time, read_end)` is False; else None, and nothing
@@ -99,24 +94,35 @@ class SampleTimer:
         out once: the reader's every fresh read asks both, one after the other."""
         if self.hi is None:
             return self.fresh(read_time, read_end)
-        lo, hi = self._leaked(read_time)
-        k, k_min = self._index_range(read_time, read_end, lo, hi)
-        if k > k_min:
-            return None
-        self.lo, self.hi = lo, hi                    # fresh()'s _leak(read_time)
-        self._t_hi = self._t_lo = read_time
-        return self._take(k, read_end)
+        return self.fresh_after_first(read_time, read_end, certain_only=True)
 
-    def _take(self, k: int, end: float) -> tuple[float, int, int]:
-        """Sample k, read by a transfer that ended by `end`, taken as the newest: its (t_s, index, lost before)."""
+    _hi_fresh: float | None = None      # the bracket after the last fresh read after the first (StallAware's)
+    _lo_fresh: float | None = None
+
+    def fresh_after_first(self, read_time: float, end: float, certain_only: bool) -> tuple[float, int, int] | None:
+        """`fresh` once the first sample was taken (`hi` set), for a transfer between `read_time` and `end`:
+        the bracket leaked to `read_time`, the largest index it allows taken as the newest sample (the ambiguity
+        counted), the bracket narrowed by its ready time. certain_only: None instead, and nothing changed, when
+        the index is not unique. One method for both (the reader's common read calls it directly:
+        drivers.chip_source), the bracket kept in locals until it is stored once."""
+        lo, hi = self._leaked(read_time)
+        k, k_min = self._index_range(read_time, end, lo, hi)
+        if k > k_min:
+            if certain_only:
+                return None
+            self.ambiguous_reads += 1
+            self.ambiguous_samples += k - k_min
+        self._t_hi = self._t_lo = read_time
         P = self.period_s
         lost = k - self.k - 1
         self.k = k
         self._consumed_upto = -1
-        self.hi = min(self.hi, end - k * P)
-        if self.lo >= self.hi:                       # only after k was forced up: trust the newest read
-            self.lo = self.hi - 0.25 * P
-        return self.hi + k * P, k, lost
+        hi = min(hi, end - k * P)
+        if lo >= hi:                                 # only after k was forced up: trust the newest read
+            lo = hi - 0.25 * P
+        self.lo = self._lo_fresh = lo
+        self.hi = self._hi_fresh = hi
+        return hi + k * P, k, lost
 
     def index_uncertain(self, read_time: float, read_end: float) -> bool:
         """Would a fresh read between `read_time` and `read_end` get an index that is only the largest allowed (a
@@ -171,18 +177,11 @@ class StallAwareSampleTimer(SampleTimer):
     STALL_PERIODS = 2.0
 
     stalled_reads = 0
-    _hi_fresh: float | None = None      # the phase upper bound after the last fresh read (never dragged)
 
     def fresh(self, read_time: float, read_end: float | None = None,
               newer_ready: bool = False) -> tuple[float, int, int]:
         out = super().fresh(read_time, read_end, newer_ready)
         self._hi_fresh, self._lo_fresh = self.hi, self.lo
-        return out
-
-    def fresh_if_certain(self, read_time: float, read_end: float) -> tuple[float, int, int] | None:
-        out = super().fresh_if_certain(read_time, read_end)
-        if out is not None:
-            self._hi_fresh, self._lo_fresh = self.hi, self.lo
         return out
 
     def stale(self, read_time: float) -> None:

@@ -125,6 +125,7 @@ class ThreadedSource(LiveSource):
         self.sample_rate_hz = inner.sample_rate_hz
         self._clock = clock
         self._sleep_until = sleep_until or functools.partial(_sleep_until, clock)
+        self._sleep_until_given = sleep_until     # None: the pacing sleeps with time.sleep itself
         self._capacity = int(capacity_samples)
         self._realtime = realtime
         self._request_priority = request_priority     # asks for SCHED_FIFO: "" granted, else why not
@@ -200,36 +201,36 @@ class ThreadedSource(LiveSource):
                 self._hand_over(sample)
 
     def _read_per_sample(self) -> None:
-        """A per-sample source: the hand-over tick, wait for the next sample, read it, hand it over."""
+        """A per-sample source: the hand-over tick, wait for the next sample, read it, hand it over. The read is
+        timed (`read_us_max`) and its start is the pacing's last read time. One function for the loop's work
+        between two waits (and the pacing's in `wait_for_sample`): every frame less is CPU less after each
+        wake's cold caches (docs/daemon.md "Performance")."""
         failures = ReadFailures()    # when a failed read is a sensor failure (drivers.read_failures)
-        pacing = _Pacing(self.inner, self._clock, self._sleep_until, 1.0 / self.sample_rate_hz, self.stats)
+        pacing = _Pacing(self.inner, self._clock, self._sleep_until_given, 1.0 / self.sample_rate_hz, self.stats,
+                         sleep_until_default=self._sleep_until)
         stop, after_read, wait_for_sample = self._stop, self.after_read, pacing.wait_for_sample
+        clock, inner_lock, read_one, stats = self._clock, self._inner_lock, self.inner.read_one, self.stats
         while not stop.is_set():
             if after_read is not None:
                 after_read()
             if not wait_for_sample() or stop.is_set():
                 continue
             try:
-                sample = self._read_one(pacing)
+                with inner_lock:
+                    woke = pacing.last_read_s = clock()
+                    sample = read_one(woke)
+                    read_us = (clock() - woke) * 1e6
             except Exception as exc:  # noqa: BLE001 - FrameError / BusError / SensorUnavailable / OSError
                 self._read_failed(exc, failures)
                 continue
-            self.stats["reads"] += 1
-            failures.read_ok()
+            if read_us > stats["read_us_max"]:
+                stats["read_us_max"] = int(read_us)
+            stats["reads"] += 1
+            if failures.consecutive_frame_errors:
+                failures.read_ok()
             pacing.last_stale = sample is None
             if sample is not None:
                 self._hand_over(sample)
-
-    def _read_one(self, pacing: _Pacing):
-        """One read of the inner source, timed (`read_us_max`); its start is the pacing's last read time."""
-        clock = self._clock
-        with self._inner_lock:
-            woke = pacing.last_read_s = clock()
-            sample = self.inner.read_one(woke)
-            read_us = (clock() - woke) * 1e6
-        if read_us > self.stats["read_us_max"]:
-            self.stats["read_us_max"] = int(read_us)
-        return sample
 
     def _read_failed(self, exc: Exception, failures: ReadFailures) -> None:
         """A failed read: counted, the error set when it is a sensor failure, and a bus failure waited out (the
@@ -302,25 +303,52 @@ class _Pacing:
 
     EDGE_WAIT_S = 0.1     # a data-ready wait gives up after this, so the loop sees a stop and runs its hand-over
 
-    def __init__(self, inner, clock, sleep_until, period_s: float, stats: dict):
+    def __init__(self, inner, clock, sleep_until, period_s: float, stats: dict, sleep_until_default=None):
+        """sleep_until: wait until clock() ≥ t (a test's stepped clock); None: time.sleep for the time left on
+        `clock` (sleep_until_default, that wait as a function, is then not called: a Python frame less a read)."""
         self.inner, self.clock, self.sleep_until, self.stats = inner, clock, sleep_until, stats
+        self._sleep_until_default = sleep_until_default
         self.period_s = period_s
         self.stale_gap_s = STALE_REREAD_PERIODS * period_s
-        self.last_read_s = 0.0      # when the latest read started (ThreadedSource._read_one sets it)
+        self.last_read_s = 0.0      # when the latest read started (ThreadedSource._read_per_sample sets it)
         self.last_stale = False     # the latest read found no new sample
         self._timer = None
 
     def wait_for_sample(self) -> bool:
-        """Wait until the next sample should be ready; False when no data-ready edge came (look again)."""
-        if self._timer is None:
+        """Wait until the next sample should be ready; False when no data-ready edge came (look again).
+
+        The next read time is the inner source's timer's: the chip sources pass it through (ChipSource,
+        ReconnectingSource and GroundTruthSource `next_read_time`), so once the timer exists it is asked
+        directly, three Python frames less a read. No stale read spaced (`_spaced`) and no lateness counted
+        (`_count_lateness`) in a call of their own: the loop's common case is a comparison each."""
+        timer = self._timer
+        if timer is None:
             # the inner source's timer exists once the chip first started, and is kept through reconnections
             # (drivers.reconnecting): looked up until then, not at every read
-            self._timer = self.inner.timer
-        if self._timer is not None and self._timer.waits_for_edges:
-            return self._timer.wait(self.EDGE_WAIT_S)
-        target = self._spaced(self.inner.next_read_time())
+            timer = self._timer = self.inner.timer
+            if timer is None:
+                return self._wait_until(self._spaced(self.inner.next_read_time()))
+        if timer.waits_for_edges:
+            return timer.wait(self.EDGE_WAIT_S)
+        target = timer.next_read_time()
+        if self.last_stale:
+            target = self._spaced(target)
+        if self.sleep_until is not None or target <= 0.0:
+            return self._wait_until(target)
+        # `_wait_until` with time.sleep on the pacing's clock (the reader's own wait: no sleep_until given)
+        clock = self.clock
+        dt = target - clock()
+        if dt > 0:
+            time.sleep(dt)
+        late_s = clock() - target
+        if late_s > 0.25 * self.period_s or late_s * 1e6 > self.stats["wake_late_max_us"]:
+            self._count_lateness(late_s)
+        return True
+
+    def _wait_until(self, target: float) -> bool:
+        """Wait until `target` (0: read now) and count the wake's lateness."""
         if target > 0.0:
-            self.sleep_until(target)
+            (self.sleep_until or self._sleep_until_default)(target)
             self._count_lateness(self.clock() - target)
         return True
 

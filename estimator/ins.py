@@ -40,8 +40,10 @@ from .heading_monitor import HeadingCheckRecord
 from .heading_publication import HeadingReport
 from .iron_in_use import IronInUse
 from .ins_step_block import fast_step_block
-from .ins_start import (first_fix_in_turn, first_history_row, fresh_state, initial_covariance, initial_true_attitude,
-                        learned_to_keep, levelling_force, levelling_lean, start_mag_reference, start_sensor_errors)
+from .ins_start import (axis_levelling_sigma_rad, carry_over_fix_delay, couple_yaw_to_tilt, first_fix_in_turn,
+                        first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
+                        levelling_force, levelling_lean, start_mag_reference, start_sensor_errors,
+                        tilt_through_dip_row)
 from .filter_output import (AttitudeFields, after_init_flags, attitude_estimate, estimate_flags,
                             float_field_slice, uninitialised_estimate)
 from .kernel_entry import argument_types, entry_point
@@ -494,6 +496,7 @@ class Ins:
         self._initialised = False
         self._reinit_pending = False
         self._levelled_on_force = False    # the start levelled on the specific force: its first fix acts (_fuse)
+        self._levelled_on_axis = False     # ... on a steady turn's rotation axis: its first fix's velocity is carried
         self._start_t_s = math.nan
         self._pending_flags = 0
         # the fixes offered (update_gnss): taken, queued until the samples reach them, or refused, and counted
@@ -618,6 +621,7 @@ class Ins:
         self._initialised = False
         self._reinit_pending = False
         self._levelled_on_force = False
+        self._levelled_on_axis = False
         self._pending_flags = 0
         self._intake.reset()
         self._published.reset()
@@ -906,6 +910,10 @@ class Ins:
         res, arm_adopted = self._fusion.fuse(fix)
         if res & core.R_NAV_INIT and self._levelled_on_force:
             self._widen_for_turn_lean()
+        elif res & core.R_NAV_INIT and self._levelled_on_axis:
+            self._levelled_on_axis = False
+            carry_over_fix_delay(self._x)      # levelled on a turn's axis the attitude is right: the fix is late
+            self._couple_start_yaw_to_tilt()
         if arm_adopted:
             # the heading, bent by the wrong arm, is found again as at the start: unconfirmed, aligned to the
             # bank's yaw once valid
@@ -954,8 +962,12 @@ class Ins:
         self._heading.confirmation.start_biases(keep_bg, kept.accel_bias_m_s2)
         first_history_row(self._x, self._hist, t_s, q0, g, keep_bg)
         start_mag_reference(self._x, kept, p.mag_min_undisturbed_s)
-        initial_covariance(self._P, p, use_mag, levelling_lean(a_level, m if use_mag else None, p.level_noise_m_s2))
         self._levelled_on_force = a_level is a or np.array_equal(a_level, a)
+        self._levelled_on_axis = not self._levelled_on_force
+        axis_sigma = (axis_levelling_sigma_rad(g - kept.gyro_bias_rad_s, p.init_gyro_bias_sigma_rad_s)
+                      if self._levelled_on_axis else 0.0)
+        initial_covariance(self._P, p, use_mag, levelling_lean(a_level, m if use_mag else None, p.level_noise_m_s2),
+                           axis_sigma)
         self._start_t_s = float(t_s)
         self._heading.restart_calibration_error_states()
         self._restart_companions(t_s)
@@ -979,6 +991,18 @@ class Ins:
         if first_fix_in_turn(self._x, self._P, self._hist, p, self._declination, yaw_from_mag, soon):
             self._published.reset()
             self._pending_flags |= int(EstimateFlags.YAW_RESET)
+
+    def _couple_start_yaw_to_tilt(self) -> None:
+        """The first fix of a start levelled on a turn's axis, its yaw from the magnetometer: until now the heading
+        row had no tilt part (ins_core `_mag_heading_row`: heading only before the first fix), so the yaw's 1σ says
+        the field's heading error alone while the yaw is off by the tilt's error through the dip as well; from here
+        on the row carries the tilt, so P must say that the yaw's error is the tilt's through the dip
+        (ins_start.couple_yaw_to_tilt, docs/estimator.md "startsig")."""
+        if not (self.params.mag_enabled and self._rerun is None):
+            return
+        row = tilt_through_dip_row(self._x["q"], self._x["mag_last_ut"])
+        if row is not None:
+            couple_yaw_to_tilt(self._P, row)
 
     # ----------------------------------------------------------------------- the start run again (start_rerun.py)
     def _arm_start_recording(self) -> None:

@@ -133,7 +133,7 @@ class InsGnssFusion:
         """The fix's velocity innovation at the antenna arm the filter fuses with (`arm_in_use`), before the fix is
         fused, from the history interpolated at its time of validity as the kernel reads it (`state_at`), for the
         lever-arm check (lever_arm_fit.py): lever_arm_kernel.fix_innovation, compiled (the same floats as the
-        Python of `state_at`, history_rows.rows_near, lever_arm_fit.mean_rate and rate_cross_ned)."""
+        Python of `state_at` and tests/lever_arm_reference.py)."""
         found, innovation, rate_cross, vel = self._fix_innovation(
             self._hist_rows, int(self._x["hist_newest"]), int(self._x["hist_count"]), t_s,
             np.array([v[0], v[1], v[2] if use_vd else math.nan]), self.arm_in_use(), 0.5 * RATE_MEAN_S)

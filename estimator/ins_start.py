@@ -165,6 +165,45 @@ def widen_for_lean(P: np.ndarray, lean_rad: float, dip_rad: float, use_mag: bool
     return True
 
 
+def tilt_through_dip_row(q, m) -> np.ndarray | None:
+    """How a tilt error tips the magnetometer's heading: the yaw error δθ_D per tilt error (δθ_N, δθ_E) of a yaw set
+    from the field m (body) at the attitude q, (Z/H)·u with u the horizontal field's direction and Z/H = tan(dip)
+    (the field (mn, me, md) in the estimated NED frame: Z/H·u = md·(mn, me)/(mn² + me²)). The kernel's heading row
+    (ins_core `_mag_heading_row`) is α = −δθ_D + (Z/H) u·δθ; a yaw taken where α = 0 is off by (Z/H) u·δθ_tilt: a
+    6.3° tilt about the horizontal field's axis at a −72° dip puts the heading about 19° off (docs/estimator.md
+    "startsig"). None without a horizontal field."""
+    mv = np.asarray(m, dtype=float)
+    if not np.all(np.isfinite(mv)):
+        return None
+    mn, me, md = np.asarray(quat_to_dcm(q), dtype=float) @ mv
+    mh2 = float(mn * mn + me * me)
+    if not mh2 > 0.0:
+        return None
+    return np.array([md * mn / mh2, md * me / mh2])
+
+
+def couple_yaw_to_tilt(P: np.ndarray, row: np.ndarray) -> None:
+    """The magnetometer set the yaw at a tilt the levelling could not check: its error is the field's heading error
+    plus `row`·δθ_tilt (`tilt_through_dip_row`). The yaw's error state taken to that, δθ_D' = δθ_D + row·δθ_tilt,
+    is the linear map A (the identity, and `row` in the yaw's row at the tilt's columns): P ← A P Aᵀ (Maybeck,
+    Stochastic Models, Estimation and Control vol. 1, covariance of a linear function of a random vector). It puts
+    row P_tt rowᵀ into the yaw's variance and row·P_tt into its covariance with the tilt, so that what later
+    corrects the tilt (the fixes' velocity) corrects the yaw with it, and the heading row that carries the tilt
+    (ins_core `_mag_heading_row` once fixes hold the tilt) reads the yaw's error as the tilt's."""
+    tilt = (core.E_TILT_N, core.E_TILT_E)
+    a = np.eye(P.shape[0])
+    a[core.E_YAW, tilt[0]] = row[0]
+    a[core.E_YAW, tilt[1]] = row[1]
+    P[:] = a @ P @ a.T
+
+
+def axis_levelling_sigma_rad(rate_rad_s, rate_sigma_rad_s: float) -> float:
+    """How far a vertical levelled on the rotation axis (`levelling_force`) may be off per horizontal axis: the
+    gyro's bias across the rate, 1σ `rate_sigma_rad_s` per axis, tips the measured axis by atan(σ_b/|ω|)."""
+    wn = float(np.linalg.norm(np.asarray(rate_rad_s, dtype=float)))
+    return math.atan2(rate_sigma_rad_s, wn) if wn > 0.0 else math.pi / 2.0
+
+
 def level_again(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, f_level, m, declination_rad: float) -> None:
     """The attitude levelled on `f_level` with the magnetometer's heading (as at the start), the history rows
     turned with it (the fixes that follow compare with them), the tilt and yaw restarted uncorrelated at the
@@ -178,16 +217,32 @@ def level_again(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, f_l
     x["q"] = q_new
     c = np.asarray(quat_to_dcm(q_new), dtype=float)
     x["acc_ned_lp_m_s2"] = c @ x["acc_last_m_s2"]
-    # the fix set the velocity it had at its own time, which is this sample's less the fix's delay: levelled on
-    # the force, the attitude saw no horizontal acceleration over that delay, the turn's is C f + g
-    delay_s = float(x["t_last_s"]) - float(x["gnss_fused_t_s"])
-    if 0.0 < delay_s < math.inf:
-        a_ned = c @ np.asarray(x["acc_last_m_s2"], dtype=float)
-        x["vel_ned_m_s"][:2] = x["vel_ned_m_s"][:2] + delay_s * a_ned[:2]
+    # levelled on the force, the attitude saw no horizontal acceleration over the fix's delay
+    carry_over_fix_delay(x)
     residual = abs(float(np.linalg.norm(f_level)) - STANDARD_GRAVITY_M_S2) / STANDARD_GRAVITY_M_S2
     for i in (core.E_TILT_N, core.E_TILT_E):
         restart_uncorrelated(P, i, max(p.init_sigma_tilt_rad, residual) ** 2)
     restart_uncorrelated(P, core.E_YAW, max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) ** 2)
+
+
+def carry_over_fix_delay(x: np.void) -> None:
+    """The first fix set the velocity it had at its own time, which is this sample's less the fix's delay
+    (`t_last_s` − `gnss_fused_t_s`; 0.095 s in the simulator): carried over that delay as the turn turns it, the
+    horizontal velocity rotated about the vertical by the rate about it (the down row of C times the gyro less its
+    bias) times the delay, the centripetal ω × v (0.3–0.6 m/s in 0.095 s in the restarts of docs/estimator.md
+    "bank39"). Not C f: its horizontal part turns with the start's yaw, which the magnetometer gives through the
+    levelled tilt's error at the dip (20° off at Hobart from a 6.3° tilt error), and a centripetal turned 20° puts
+    1.3 m/s² along the track; the carry then made the next fixes fail the velocity gate (docs/estimator.md
+    "bank2"). The rate about the vertical does not depend on the yaw."""
+    delay_s = float(x["t_last_s"]) - float(x["gnss_fused_t_s"])
+    if 0.0 < delay_s < math.inf:
+        c = np.asarray(quat_to_dcm(x["q"]), dtype=float)
+        rate_down_rad_s = float(c[2] @ (np.asarray(x["gyro_last_rad_s"], dtype=float)
+                                        - np.asarray(x["gyro_bias_rad_s"], dtype=float)))
+        turn_rad = rate_down_rad_s * delay_s
+        v_n, v_e = float(x["vel_ned_m_s"][0]), float(x["vel_ned_m_s"][1])
+        x["vel_ned_m_s"][0] = math.cos(turn_rad) * v_n - math.sin(turn_rad) * v_e
+        x["vel_ned_m_s"][1] = math.sin(turn_rad) * v_n + math.cos(turn_rad) * v_e
 
 
 def first_fix_in_turn(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigmas, declination_rad: float,
@@ -278,17 +333,19 @@ def start_mag_reference(x: np.void, kept: LearnedErrors, min_undisturbed_s: floa
     ms["undisturbed_t_s"] = min_undisturbed_s
 
 
-def initial_covariance(P: np.ndarray, p: StartSigmas, use_mag: bool, lean: StartLean | None = None) -> None:
+def initial_covariance(P: np.ndarray, p: StartSigmas, use_mag: bool, lean: StartLean | None = None,
+                       axis_sigma_rad: float = 0.0) -> None:
     """The start-up uncertainty, uncorrelated: tilt from levelling (at least the `lean` its specific force
     allows), yaw from the magnetometer and its calibration (π, unknown, without it), velocity and position
     unknown until the first fix, the sensor errors their prior σ; the magnetometer's error states zero (the filter
     restarts them from their priors). A lean beyond levelling's own σ also tips the plane the field's heading is
     taken in: the heading is then off by about tan(dip)·lean (the kernel's magnetometer heading row, whose tilt
-    part is tan(dip) along the horizontal field), up to π."""
+    part is tan(dip) along the horizontal field), up to π. Levelled on a turn's rotation axis the tilt 1σ is at
+    least `axis_sigma_rad` (`axis_levelling_sigma_rad`)."""
     P[:] = 0.0
     lean_rad = 0.0 if lean is None else lean.lean_rad
     for i in (core.E_TILT_N, core.E_TILT_E):
-        P[i, i] = max(p.init_sigma_tilt_rad, lean_rad) ** 2
+        P[i, i] = max(p.init_sigma_tilt_rad, lean_rad, axis_sigma_rad) ** 2
     yaw_sigma = max(p.init_sigma_yaw_rad, p.calibration_sigma_rad) if use_mag else math.pi
     if use_mag and lean is not None and lean_rad > p.init_sigma_tilt_rad:
         through_dip = abs(math.tan(lean.dip_rad)) * lean_rad if math.isfinite(lean.dip_rad) else math.pi
@@ -306,6 +363,6 @@ def initial_covariance(P: np.ndarray, p: StartSigmas, use_mag: bool, lean: Start
         P[core.E_AZ_LEAN + i, core.E_AZ_LEAN + i] = p.accel_axes_tilt_sigma_rad ** 2
 
 
-__all__ = ["LearnedErrors", "StartLean", "StartSigmas", "centripetal_levelling_force", "first_history_row", "fresh_state", "initial_covariance",
+__all__ = ["LearnedErrors", "StartLean", "StartSigmas", "axis_levelling_sigma_rad", "carry_over_fix_delay", "couple_yaw_to_tilt", "centripetal_levelling_force", "first_history_row", "fresh_state", "initial_covariance",
            "field_dip_rad", "first_fix_in_turn", "first_fix_lean", "initial_true_attitude", "learned_to_keep", "level_again", "levelling_force", "levelling_lean",
-           "start_mag_reference", "start_sensor_errors", "widen_for_lean"]
+           "start_mag_reference", "start_sensor_errors", "tilt_through_dip_row", "widen_for_lean"]

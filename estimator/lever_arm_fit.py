@@ -45,8 +45,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .rotations import skew
-
 WINDOW_PAIRS = 100             # fix-to-fix differences fitted: 20 s at 5 Hz
 MIN_PAIRS = 30                 # fewer: no verdict
 MAX_PAIR_GAP_S = 0.6           # consecutive velocity fixes further apart than this are not differenced
@@ -93,34 +91,11 @@ class LeverArmFitResult(NamedTuple):
         return np.asarray(told_m, dtype=float) + err
 
 
-def mean_rate(t_rows_s: np.ndarray, rate_rows_rad_s: np.ndarray, t_s: float, rate_at_rad_s: np.ndarray) -> np.ndarray:
-    """The body rate for the arm's term at a fix of time t_s: the mean of the rates (rows of body rate, rad/s, at
-    times t_rows_s) within RATE_MEAN_S about t_s, or `rate_at_rad_s` when no row is within it."""
-    half_s = 0.5 * RATE_MEAN_S
-    n = 0
-    sx = sy = sz = 0.0
-    # in Python floats (a few dozen rows a fix, where numpy's per-call cost is most of it): the mean as numpy's
-    # `sum(axis=0) / len` computes it, from +0.0 adding the rows in their order (along a (k, 3) array's rows numpy
-    # adds row after row, no pairwise summation), then divided by their count: the same value to the bit
-    for t, (x, y, z) in zip(np.asarray(t_rows_s).tolist(), np.asarray(rate_rows_rad_s).tolist()):
-        if abs(t - t_s) <= half_s:
-            sx += x
-            sy += y
-            sz += z
-            n += 1
-    return np.array([sx / n, sy / n, sz / n]) if n else np.asarray(rate_at_rad_s, dtype=float)
-
-
-def rate_cross_ned(c_bn: np.ndarray, rate_b_rad_s: np.ndarray) -> np.ndarray:
-    """C [ω×]: the NED velocity of an antenna offset δr (body) per metre of δr, as a 3 × 3 matrix."""
-    return c_bn @ skew(rate_b_rad_s)
-
-
 class LeverArmFit:
     """The lever-arm check over the last WINDOW_PAIRS fix-to-fix differences. `add` each offered velocity fix's
     innovation (fix less the filter's prediction at the antenna it was told, NED m/s; a NaN component is not used)
-    with C [ω×] at its time of validity (`rate_cross_ned`) and its 1σ, then `fused` with what the filter did with
-    it; `result()` is the latest fit."""
+    with C [ω×] at its time of validity (lever_arm_kernel.fix_innovation makes both) and its 1σ, then `fused` with
+    what the filter did with it; `result()` is the latest fit."""
 
     def __init__(self, adopt: bool = True, prior_sigma_m: float = PRIOR_SIGMA_M):
         self.prior_sigma_m = float(prior_sigma_m)

@@ -4,16 +4,16 @@ history for each velocity fix, in one call instead of some twenty numpy calls on
 From the history rows (ins_core's ring as flat float64 rows) at the fix's time of validity t: the two rows that
 bracket t as the filter's kernel finds them (`ins_core.history_bracket`, the kernel's own), interpolated as
 `InsGnssFusion.state_at` does (a + w (b − a)); the attitude normalised (√ of the quaternion's dot with itself) and
-made a DCM (kernel_rotations.dcm: quat_to_dcm's products and sums); the body rate as lever_arm_fit.mean_rate takes it
-(the rows within RATE_MEAN_S about t added newest first from +0.0, then divided by their count; the interpolated rate
-when none is); C [ω×] (lever_arm_fit.rate_cross_ned) and the innovation v_fix − (v + C [ω×] r).
+made a DCM (kernel_rotations.dcm: quat_to_dcm's products and sums); the body rate the mean of the rows within
+RATE_MEAN_S about t (added newest first from +0.0, then divided by their count; the interpolated rate when none is);
+C [ω×] and the innovation v_fix − (v + C [ω×] r).
 
 Output-identical to that Python, to the bit: the element-wise arithmetic is the same operations in the same order
 (numba fuses no multiply-add unless asked, `fastmath` off), and the products numpy hands to BLAS (the quaternion's
 dot, C @ [ω×], C [ω×] @ r) are numba's `np.dot` and `@`, which call the same OpenBLAS kernels (scipy's copy of the
 library numpy bundles), whose fused multiply-adds a sum written out here would not reproduce
-(tools/estimate_digest.py: the same digests; test_lever_arm_kernel.py: the kernel against that Python on random
-history rings).
+(tools/estimate_digest.py: the same digests; test_lever_arm_kernel.py: the kernel against that Python, kept as
+tests/lever_arm_reference.py, on random history rings).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def fix_innovation(rows, newest, count, t_s, v_fix_ned_m_s, arm_m, half_span_s):
     for k in range(9):
         c_bn[k // 3, k % 3] = c[k]
     vel[:] = row[_VEL:_VEL + 3]
-    # the mean body rate: the rows within the span, newest first (the order of history_rows.rows_near)
+    # the mean body rate: the rows within the span, newest first (the order the Python's mask gave them in)
     n = 0
     sx = sy = sz = 0.0
     i = newest

@@ -140,6 +140,18 @@ class Result:
     outcomes: list           # update_gnss return values
 
 
+def with_fixes_offered(t_s, fixes, offer, n=None):
+    """The sample indices k (the first n of t_s; all by default), each after `offer(fix)` for every fix (the
+    (arrival time, fix) pairs of `gnss_fixes`, in arrival order) that has arrived by t_s[k]: as the daemon's loop
+    offers them, a fix arriving exactly at a sample's time before that sample."""
+    fi = 0
+    for k in range(len(t_s) if n is None else n):
+        while fi < len(fixes) and fixes[fi][0] <= t_s[k]:
+            offer(fixes[fi][1])
+            fi += 1
+        yield k
+
+
 def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=None, estimates_every=1,
             seconds=None) -> Result:
     """Feed the samples one at a time, each fix once the IMU time passes its arrival time; `sigma_yaw_out` (a
@@ -161,13 +173,12 @@ def run_ins(est, run: Run, fixes, cov_every=0, fix_filter=None, sigma_yaw_out=No
     h = np.full(n, np.nan)
     cov = {}
     outcomes = []
-    fi = 0
-    for k in range(n):
-        while fi < len(fixes) and fixes[fi][0] <= t[k]:
-            fix = fixes[fi][1]
-            if fix_filter is None or fix_filter(fix):
-                outcomes.append(est.update_gnss(fix))
-            fi += 1
+
+    def offer(fix):
+        if fix_filter is None or fix_filter(fix):
+            outcomes.append(est.update_gnss(fix))
+
+    for k in with_fixes_offered(t, fixes, offer, n):
         if k % estimates_every:
             flags[k] = int(est.step(samples[k]).flags)
             q_true[k] = est.true_attitude_q_wxyz()

@@ -10,25 +10,14 @@ from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
-from ahrsd.drivers.sim_clock import ChipClock
 from ahrsd.estimator import make_estimator
-
-
-class FakeClock(ChipClock):
-    def __init__(self, t: float = 100.0):
-        self.t = t
-
-    def __call__(self) -> float:
-        return self.t
-
-    def sleep(self, s: float) -> None:
-        self.t += max(0.0, s)
+from support.stepped_clock import ManualClock
 
 
 class _Loop:
     """What the reader asks of the event loop: the time."""
 
-    def __init__(self, clock: FakeClock):
+    def __init__(self, clock: ManualClock):
         self.time = clock
 
 
@@ -58,7 +47,7 @@ class ReaderRig(SampleReader):
     name per driver error, in order; `on_sample(sample)` (optional) runs for every processed sample;
     `texts`: the STATUSTEXTs it sent."""
 
-    def __init__(self, source, clock: FakeClock, on_sample=None):
+    def __init__(self, source, clock: ManualClock, on_sample=None):
         listeners = SampleListeners()
         self.texts: list[tuple[int, str]] = []
         self.published = 0

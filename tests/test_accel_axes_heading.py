@@ -14,7 +14,7 @@ from ahrsd.estimator.accel_axes_heading import accel_axes_heading_variance_rad2
 from ahrsd.estimator.ins import Ins
 from ahrsd.simulation import SensorErrors
 
-from ins_truth import DECLINATION, gnss_fixes, simulated_run, tilt_heading_errors_deg
+from ins_truth import DECLINATION, gnss_fixes, simulated_run, tilt_heading_errors_deg, with_fixes_offered
 
 M_XY_RAD = math.radians(1.0)      # a deliberately bad accelerometer, so the effect stands out of the noise
 SECONDS = 150.0
@@ -36,11 +36,8 @@ def _run(m_xy_rad: float, **params):
     keep = np.flatnonzero((np.arange(len(t)) % 4 == 0) & (t >= FROM_S))
     q = np.empty((len(keep), 4))
     sig = np.empty(len(keep))
-    fi = j = 0
-    for k in range(len(t)):
-        while fi < len(fixes) and fixes[fi][0] <= t[k]:
-            est.update_gnss(fixes[fi][1])
-            fi += 1
+    j = 0
+    for k in with_fixes_offered(t, fixes, est.update_gnss):
         # stepped: the estimate is built only where kept (estimator/estimate_view.py: building none changes none)
         view = est.step(make_sample(t[k], run.gyro[k], run.accel[k], run.mag[k], flags=SampleFlags.NEW_DATA))
         if j < len(keep) and k == keep[j]:

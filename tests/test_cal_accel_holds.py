@@ -15,22 +15,11 @@ from ahrsd.core.sample import make_sample
 from ahrsd.drivers.recording import RecordingWriter
 from ahrsd.simulation import DEFAULT_SITE, SensorErrors, simulate
 
-from support.accel_positions import position_holds
+from support.accel_positions import holds_recording, position_holds
 from support.recordings import write_block
 
 RATE_HZ = 100.0
 MG = 9.80665e-3
-
-
-def holds_recording(path, hold_s: float, seed: int = 5):
-    scenario, windows, _ = position_holds(24, hold_s=hold_s, slew_s=1.0)
-    errors = SensorErrors.adis16405(seed=seed)
-    block = simulate(scenario, windows[-1][1], rate_hz=RATE_HZ, seed=seed, errors=errors)
-    with RecordingWriter(path, extra_columns=("temp_c",)) as w:
-        for i in range(len(block)):
-            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]),
-                    temp_c=block.temp_c[i])
-    return block, windows, errors
 
 
 def calibrate(tmp_path, *args):

@@ -13,22 +13,14 @@ from ahrsd.drivers.ground_truth import BurstIndexTap
 from ahrsd.drivers.sample_timer import StallAwareSampleTimer
 from ahrsd.drivers.simulated import SimulatedAdis16405, SimulatedDataReadyLine
 from ahrsd.drivers.sim_clock import ChipClock
+from support.stepped_clock import ManualClock
 
 RATE_HZ = 819.2
 PERIOD_S = 1 / RATE_HZ
 READ_LATENCY_S = 20e-6          # edge (or timer) to the start of the transfer
 
 
-class HostClock(ChipClock):
-    def __init__(self, t: float = 100.0):
-        self.t = t
-
-    def __call__(self) -> float:
-        return self.t
-
-    def sleep(self, s: float) -> None:
-        self.t += max(0.0, s)
-
+class HostClock(ManualClock):
     def sleep_until(self, t: float) -> None:
         self.t = max(self.t, t + READ_LATENCY_S)
 

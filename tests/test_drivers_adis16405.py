@@ -12,10 +12,10 @@ from ahrsd.drivers.errors import ConfigError, DriverError, FrameError, ProductId
 from ahrsd.drivers.faults import FaultPlan
 from ahrsd.core.sample import SampleFlags
 from ahrsd.drivers.simulated import SimulatedAdis16405
-from ahrsd.drivers.sim_clock import ChipClock
 from ahrsd.drivers.source import start_chip_source
 from sim_streams import FixedStream
 from support.frame_bus import FrameBus
+from support.stepped_clock import ManualClock
 from ahrsd.drivers.spi import SpiBus
 
 G0 = R.STANDARD_GRAVITY_M_S2
@@ -229,21 +229,10 @@ def test_unsaturated_sample_has_no_alarm():
     assert imu.counters["saturations"] == 0 and imu.counters["ea_flags"] == 0
 
 
-class FakeClock(ChipClock):
-    def __init__(self):
-        self.t = 100.0
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, s):
-        self.t += s
-
-
 def test_clocked_chip_stale_and_gaps():
     """The chip on a host clock, read through the chip source (the one timing path): stale reads give no
     sample, lost samples are counted and flagged, time stamps advance by whole periods."""
-    clock = FakeClock()
+    clock = ManualClock()
     chip = SimulatedAdis16405(FixedStream(GYRO, ACCEL, MAG), clock=clock)
     src = start_chip_source(chip, "test chip", clock=clock)
     imu = src.driver

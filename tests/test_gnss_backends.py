@@ -28,7 +28,7 @@ from ahrsd.drivers.gnss.recording import GnssRecordingWriter
 from ahrsd.drivers.gnss.replay import RecordingGnssBackend
 from ahrsd.drivers.gnss.serial_port import SerialGnssSource
 from ahrsd.drivers.gnss.simulated import SimulatedGnssReceiver
-from support.fake_aided import GateCounters
+from support.fake_aided import GateCounters, WithoutLeverArmCheck
 
 LATENCY_S = 0.1
 BAD = 3                                   # the epoch at 95° N
@@ -47,11 +47,10 @@ class Clock:
         return self.t
 
 
-class AidedEstimator:
+class AidedEstimator(WithoutLeverArmCheck):
     """Records what it is offered (the GnssAidedEstimator protocol of the task)."""
 
     name = "recorder"
-    lever_arm_m = (0.0, 0.0, 0.0)
 
     def __init__(self):
         self.fixes: list[GnssFix] = []
@@ -60,14 +59,6 @@ class AidedEstimator:
     def update_gnss(self, fix: GnssFix) -> int:
         self.fixes.append(fix)
         return 0
-
-    def lever_arm_fit(self):
-        return None    # the lever-arm check has nothing to say
-
-
-    def lever_arm_adopted_m(self):
-
-        return None    # nor adopted an arm
 
 
 @dataclasses.dataclass

@@ -14,6 +14,7 @@ from ahrsd.calibration.mag.fit_types import MagFitInput
 from ahrsd.cli.calibrate_gnss import COURSE_MIN_SPEED_M_S, course_reference_deg
 from ahrsd.cli.main import main
 from ahrsd.core.gnss import make_fix
+from support.fake_aided import WithoutLeverArmCheck
 
 
 def fixes_of(t, course_deg, speed):
@@ -36,11 +37,10 @@ def test_course_reference_only_on_fast_straight_tracks():
     assert COURSE_MIN_SPEED_M_S > 1.0
 
 
-class Recorder:
+class Recorder(WithoutLeverArmCheck):
     """An aided estimator (estimator.base.GnssAidedEstimator) that records what it is offered, in order."""
 
     name = "recorder"
-    lever_arm_m = (0.0, 0.0, 0.0)
 
     def __init__(self):
         self.events = []
@@ -48,14 +48,6 @@ class Recorder:
 
     def update_gnss(self, fix):
         self.events.append(("fix", fix.t_s))
-
-    def lever_arm_fit(self):
-        return None    # the lever-arm check has nothing to say
-
-
-    def lever_arm_adopted_m(self):
-
-        return None    # nor adopted an arm
 
     def update(self, sample):
         self.events.append(("sample", sample.t_s))

@@ -17,7 +17,8 @@ from ahrsd.core.estimate import EstimateFlags, HeadingState
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.estimator.ins import Ins, InsParams
 from ahrsd.simulation import SensorErrors
-from bench.vehicle_accuracy import CALIBRATED_SIGMA_RAD, HONESTY_SITES, simulate_vehicle, tilt_heading_errors_deg
+from bench.vehicle_accuracy import (CALIBRATED_SIGMA_RAD, HONESTY_SITES, estimates_in_arrival_order, simulate_vehicle,
+                                    tilt_heading_errors_deg)
 
 SECONDS = 20.0
 
@@ -37,13 +38,7 @@ def _run(mag: str, seed: int = 14, seconds: float = SECONDS, place=HONESTY_SITES
                                            np.zeros(n, int), np.zeros(n, int))
     bias_learns = np.zeros(n, bool)
     pitch_sigma, bias_x_err = np.zeros(n), np.zeros(n)
-    fi = 0
-    for k, t in enumerate(run.t_s):
-        while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t:
-            est.update_gnss(run.fixes[fi])
-            fi += 1
-        e = est.update(make_sample(t, run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k],
-                                   flags=SampleFlags.NEW_DATA))
+    for k, e in estimates_in_arrival_order(est, run, run.fixes):
         q[k], sig[k], state[k], flags[k], resets[k] = (e.q_wxyz, math.degrees(e.sigma_rpy_rad[2]),
                                                        int(e.heading_state), int(e.flags), est.yaw_resets)
         valid[k] = e.integrity is not None and e.integrity.gsf_valid

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 import pytest
-from ins_truth import DECLINATION, gnss_fixes, simulated_run
+from ins_truth import DECLINATION, gnss_fixes, simulated_run, with_fixes_offered
 from scipy.spatial.transform import Rotation
 
 from ahrsd.core.sample import SampleFlags, make_sample
@@ -33,12 +33,8 @@ def wrong_calibration():
     ins = Ins(declination_rad=DECLINATION)
     ins.set_mag_calibration_sigma(CLAIMED_SIGMA_RAD)
     rows = []
-    fi = 0
     first_rejection_s = math.inf     # the first heading check that rejected the magnetometer
-    for k in range(len(t)):
-        while fi < len(fixes) and fixes[fi][0] <= t[k]:
-            ins.update_gnss(fixes[fi][1])
-            fi += 1
+    for k in with_fixes_offered(t, fixes, ins.update_gnss):
         est = ins.update(make_sample(t[k], run.gyro[k], run.accel[k], run.block.mag_ut[k],
                                      flags=SampleFlags.NEW_DATA))
         if ins.heading_checks and ins.heading_checks[-1].yaw_var_floor_rad2 > 0.0:

@@ -1,6 +1,5 @@
 """estimator/history_rows.py: reading ins's history ring at a fix's time by binary search gives what the kernel's walk
-back from the newest row gives (`ins_core._history_at`), and the rows near a time hold every row a mask over all
-the kept rows keeps, in its order."""
+back from the newest row gives (`ins_core._history_at`)."""
 
 from __future__ import annotations
 
@@ -8,7 +7,7 @@ import numpy as np
 import pytest
 
 from ahrsd.estimator import ins_core as core
-from ahrsd.estimator.history_rows import bracket, rows_near
+from ahrsd.estimator.history_rows import bracket
 
 H = core.H_LEN
 
@@ -49,21 +48,3 @@ def test_bracket_is_the_kernels(count, newest):
 def test_bracket_without_rows():
     hist = np.zeros(H, core.INS_HISTORY_DTYPE)
     assert bracket(hist["t_s"], 0, 0, 1.0) == (-1, -1, 0.0)
-
-
-@pytest.mark.parametrize("count,newest", CASES)
-@pytest.mark.parametrize("rate_hz", [50.0, 200.0, 819.2])
-def test_rows_near_keep_what_a_mask_over_all_rows_keeps(count, newest, rate_hz):
-    rng = np.random.default_rng(count + newest + int(rate_hz))
-    x, hist, times = _ring(rng, count, newest, rate_hz)
-    ts = hist["t_s"]
-    kept = (newest - np.arange(count)) % H           # newest first, every kept row
-    half = 0.05
-    on = times[np.unique(np.concatenate([rng.integers(0, count, 30), [0, count - 1]]))]
-    queries = np.concatenate([on, on + half, on - half, [np.nan],    # a row exactly at the span's edge
-                              rng.uniform(times[0] - 0.2, times[-1] + 0.2, 60)])
-    for t in queries:
-        want = kept[np.abs(ts[kept] - t) <= half]
-        near = rows_near(ts, newest, count, float(t), half)
-        got = near[np.abs(ts[near] - t) <= half]
-        np.testing.assert_array_equal(got, want)

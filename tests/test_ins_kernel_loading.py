@@ -12,9 +12,8 @@ import sys
 _SCRIPT = r"""
 import json, math
 import numba.core.dispatcher as dispatcher
-from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.estimator.ins import Ins
-from bench.vehicle_accuracy import HONESTY_SITES, simulate_vehicle
+from bench.vehicle_accuracy import HONESTY_SITES, estimates_in_arrival_order, simulate_vehicle
 
 site, iron = HONESTY_SITES["held-out"]
 run = simulate_vehicle("car", 20.0, 14, site, mag="uncalibrated", iron=iron)
@@ -30,12 +29,8 @@ def counted(self, *args, **kws):
 
 
 dispatcher.Dispatcher._compile_for_args = counted
-fi = 0
-for k, t in enumerate(run.t_s):
-    while fi < len(run.fixes) and run.fixes[fi].extra["t_rx_s"] <= t:
-        est.update_gnss(run.fixes[fi])
-        fi += 1
-    est.update(make_sample(t, run.gyro_rad_s[k], run.accel_m_s2[k], run.mag_ut[k], flags=SampleFlags.NEW_DATA))
+for _ in estimates_in_arrival_order(est, run, run.fixes):
+    pass
 print(json.dumps({"loaded_in_run": loaded, "alignments": est.gnss_yaw_alignments,
                   "checks": len(est.heading_checks)}))
 """

@@ -5,7 +5,7 @@ distance to it (Ins._floor_yaw_sigma_without_magnetometer). Truth is the simulat
 from __future__ import annotations
 
 import numpy as np
-from ins_truth import DECLINATION, gnss_fixes, simulated_run, tilt_heading_errors_deg
+from ins_truth import DECLINATION, gnss_fixes, simulated_run, tilt_heading_errors_deg, with_fixes_offered
 
 from ahrsd.core.estimate import HeadingState
 from ahrsd.core.sample import SampleFlags, make_sample
@@ -24,11 +24,7 @@ def test_gnss_only_yaw_sigma_covers_the_error_on_level_turns():
     q = np.zeros((n, 4))
     sigma_yaw = np.zeros(n)
     state = np.zeros(n, dtype=np.int64)
-    fi = 0
-    for k in range(n):
-        while fi < len(fixes) and fixes[fi][0] <= t[k]:
-            ins.update_gnss(fixes[fi][1])
-            fi += 1
+    for k in with_fixes_offered(t, fixes, ins.update_gnss, n):
         e = ins.update(make_sample(t[k], run.gyro[k], run.accel[k], run.mag[k], flags=SampleFlags.NEW_DATA))
         q[k] = e.q_wxyz
         sigma_yaw[k] = e.sigma_rpy_rad[2]

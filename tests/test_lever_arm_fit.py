@@ -12,8 +12,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.core.estimate import HeadingState
-from ahrsd.estimator.lever_arm_fit import RATE_MEAN_S, LeverArmFit, mean_rate, rate_cross_ned
+from ahrsd.estimator.lever_arm_fit import RATE_MEAN_S, LeverArmFit
 from ahrsd.estimator.velocity_rejection_cause import heading_rejection_cause
+from lever_arm_reference import mean_rate, rate_cross_ned
 
 FIX_HZ = 5.0
 

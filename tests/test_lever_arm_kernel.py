@@ -1,8 +1,9 @@
 """estimator/lever_arm_kernel.py: the lever-arm check's innovation at a fix, compiled, gives the floats the Python it
-replaced gave (InsGnssFusion.state_at's interpolation, history_rows.rows_near, lever_arm_fit.mean_rate and
-rate_cross_ned, the innovation v_fix − (v + C [ω×] r)) to rounding (to the bit on this machine: the digests), on
-history rings with every case the fixes meet;
-and that innovation is the antenna's velocity residual, checked against scipy's rotation to rounding."""
+replaced gave (InsGnssFusion.state_at's interpolation; the rows near the fix, their mean rate and C [ω×] of
+tests/lever_arm_reference.py; the innovation v_fix − (v + C [ω×] r)) to rounding (to the bit on this machine: the
+digests), on history rings with every case the fixes meet; its mean body rate is the Python's to the bit (rows
+added newest first, then divided by their count); and that innovation is the antenna's velocity residual, checked
+against scipy's rotation to rounding."""
 
 from __future__ import annotations
 
@@ -13,10 +14,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ahrsd.estimator import ins_core as core
-from ahrsd.estimator.history_rows import bracket, rows_near
-from ahrsd.estimator.lever_arm_fit import RATE_MEAN_S, mean_rate, rate_cross_ned
+from ahrsd.estimator.history_rows import bracket
+from ahrsd.estimator.lever_arm_fit import RATE_MEAN_S
 from ahrsd.estimator.lever_arm_kernel import fix_innovation
 from ahrsd.estimator.rotations import quat_to_dcm
+from lever_arm_reference import mean_rate, rate_cross_ned, rows_near
 
 H = core.H_LEN
 HALF_S = 0.5 * RATE_MEAN_S
@@ -88,6 +90,30 @@ def test_the_kernels_terms_are_the_pythons(count, newest, rate_hz):
         for got, expected in zip((innovation, rate_cross, vel), want):
             np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12, err_msg=str(t))
     assert checked >= 4        # a one-row ring finds only the times at or after its row
+
+
+@pytest.mark.parametrize("count,newest", [(40, 10), (H, 3), (H, 500)])
+def test_the_kernels_mean_rate_is_the_pythons_to_the_bit(count, newest):
+    """The mean body rate alone, bit for bit: every row's attitude level (q = 1, so C = I exactly and C [ω×] is
+    [ω×] of the mean with no product to round), rates of magnitudes 1e-4 to 10 (so the order of the sums shows in
+    the last bits), 819.2 Hz rows (~80 within the span). Broken (the rows added in another order, the sum divided
+    otherwise): other bits than the reference's."""
+    rng = np.random.default_rng(count + newest)
+    hist, times = _ring(rng, count, newest, 819.2)
+    hist["q"] = [1.0, 0.0, 0.0, 0.0]
+    hist["rate_rad_s"] = rng.normal(0.0, 1.0, (H, 3)) * 10.0 ** rng.integers(-4, 2, (H, 1))
+    rows = hist.view(np.float64).reshape(H, -1)
+    differ = 0
+    for t in rng.uniform(times[0], times[-1], 200).tolist():
+        found, _, rate_cross, _ = fix_innovation(rows, newest, count, t, np.zeros(3), np.zeros(3), HALF_S)
+        near = rows_near(hist["t_s"], newest, count, t, HALF_S)
+        want = mean_rate(hist["t_s"][near], hist["rate_rad_s"][near], t, np.zeros(3))
+        got = np.array([rate_cross[2, 1], rate_cross[0, 2], rate_cross[1, 0]])
+        assert found and len(near) > 10, t
+        assert got.tobytes() == want.tobytes(), (t, got - want)
+        oldest_first = mean_rate(hist["t_s"][near[::-1]], hist["rate_rad_s"][near[::-1]], t, np.zeros(3))
+        differ += oldest_first.tobytes() != want.tobytes()
+    assert differ > 20          # the test sees the order: the other order's sums differ in a last bit here
 
 
 def test_the_innovation_is_the_antennas_velocity_residual():

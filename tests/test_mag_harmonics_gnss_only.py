@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 import pytest
-from ins_truth import DECLINATION, gnss_fixes, simulated_run
+from ins_truth import DECLINATION, gnss_fixes, simulated_run, with_fixes_offered
 
 from ahrsd.core.sample import SampleFlags, make_sample
 from ahrsd.estimator.ins import Ins, InsParams
@@ -45,11 +45,7 @@ def harmonic_variances_rad2(aided: bool) -> np.ndarray:
     ins = Ins(declination_rad=DECLINATION)
     ins.set_mag_calibration_sigma(STATED_SIGMA_RAD)
     smallest = np.full(5, np.inf)
-    fi = 0
-    for k in range(len(t)):
-        while fi < len(fixes) and fixes[fi][0] <= t[k]:
-            ins.update_gnss(fixes[fi][1])
-            fi += 1
+    for k in with_fixes_offered(t, fixes, ins.update_gnss):
         ins.update(make_sample(t[k], run.gyro[k], run.accel[k], run.mag[k], flags=SampleFlags.NEW_DATA))
         if k % 20 == 0:
             smallest = np.minimum(smallest, np.diag(ins.covariance)[HARMONICS])

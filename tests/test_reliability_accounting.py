@@ -32,9 +32,10 @@ from ahrsd.drivers.sample_timer import SampleTimer
 from ahrsd.drivers.simulated import SimulatedAdis16405
 from ahrsd.drivers.source import open_chip_driver, start_chip_source
 from ahrsd.drivers.source_recorder import SourceRecorder
-from reader_rig import FakeClock, ReaderRig
+from reader_rig import ReaderRig
 from sim_streams import FixedStream
 from support.chip_bus import SimulatedChipBus
+from support.stepped_clock import ManualClock
 
 CI_FAULTS = ("alarm@3-3.5:bits=SUPPLY_LOW;garbage@4-6:p=0.02;bus_error@7-8;stall@11-11.5;"
              "stuck_axis@13-15:axis=mag_x;short_read@16-17:p=0.01;burst_bug@18-20")   # bench/soak.py CI_FAULTS
@@ -71,7 +72,7 @@ def run_reader(seconds, seed, faults="", late=late_wakes, delay=lambda rng: rng.
     """The daemon's reader (SampleReader.step) on a fake clock against the chip; returns per-class offset
     changes and the totals."""
     rng = random.Random(seed)
-    clock = FakeClock(1000.0)
+    clock = ManualClock(1000.0)
     plan = build_plan(parse_schedule(faults), ADIS16405_RATE_HZ, seed=seed) if faults else None
     chip = SimulatedAdis16405(stream or FixedStream(noise_std=(1e-3, 1e-2, 0.1), seed=seed), clock=clock,
                               faults=plan)
@@ -214,7 +215,7 @@ def test_a_sample_ready_during_the_burst_bug_check_read_is_not_lost(pacing):
     from ahrsd.drivers.simulated import SimulatedDataReadyLine
 
     period = 1.0 / ADIS16405_RATE_HZ
-    clock = FakeClock(1000.0)
+    clock = ManualClock(1000.0)
     stream = FixedStream(gyro_rad_s=(-0.2, 0.0, 0.0), noise_std=(1e-3, 1e-2, 0.1), seed=7)
     chip = SimulatedAdis16405(stream, clock=clock, faults=build_plan(parse_schedule("burst_bug@0-100"),
                                                                      ADIS16405_RATE_HZ))
@@ -292,7 +293,7 @@ def test_a_real_time_recordings_counter_is_the_chips_index():
     daemon) on a stepped clock at load: each row's counter is the chip's sample index (against the first row),
     and GAP_BEFORE marks exactly the rows after samples the chip produced unread."""
     rng = random.Random(7)
-    clock = FakeClock(1000.0)
+    clock = ManualClock(1000.0)
     chip = SimulatedAdis16405(FixedStream(noise_std=(1e-3, 1e-2, 0.1), seed=7), clock=clock)
     bus = PreemptedBus(chip, clock, rng, lambda rng: rng.uniform(0.0, 200e-6))
     source = start_chip_source(bus, "test chip", clock=clock, self_test=False)

@@ -29,8 +29,9 @@ from ahrsd.drivers.sample_timer import SampleTimer, StallAwareSampleTimer
 from ahrsd.drivers.simulated import SimulatedAdis16405
 from ahrsd.drivers.source import open_chip_driver
 from ahrsd.core.estimate import EstimateFlags
-from reader_rig import FakeClock, ReaderRig
+from reader_rig import ReaderRig
 from sim_streams import FixedStream
+from support.stepped_clock import ManualClock
 
 G0 = R.STANDARD_GRAVITY_M_S2
 P = 1.0 / ADIS16405_RATE_HZ
@@ -41,7 +42,7 @@ def noisy_stream(seed=3):
                        noise_std=(math.radians(0.5), 0.03, 0.3), seed=seed)
 
 
-def sim_source(plan: FaultPlan, clock: FakeClock) -> GroundTruthSource:
+def sim_source(plan: FaultPlan, clock: ManualClock) -> GroundTruthSource:
     chip = SimulatedAdis16405(noisy_stream(), clock=clock, faults=plan)
     tap = BurstIndexTap(chip)
     src = GroundTruthSource(ReconnectingSource(lambda: tap, open_chip_driver, "test chip", clock=clock,
@@ -145,7 +146,7 @@ def test_each_diag_stat_bit_is_decoded_counted_and_flagged(bit):
 
 
 def test_self_test_failure_at_start_is_retried_with_backoff_then_runs():
-    clock = FakeClock()
+    clock = ManualClock()
     windows = parse_schedule("self_test_fail@0-12")
     src = sim_source(build_plan(windows, ADIS16405_RATE_HZ), clock)
     assert not src.inner.up and "self-test failed" in src.inner.last_error     # no exception: the daemon comes up CRITICAL
@@ -168,7 +169,7 @@ def test_self_test_failure_at_start_is_retried_with_backoff_then_runs():
 
 
 def test_bus_gone_and_back_reconnects_and_counts_the_outage():
-    clock = FakeClock()
+    clock = ManualClock()
     src = sim_source(build_plan(parse_schedule("bus_error@1-2.5"), ADIS16405_RATE_HZ), clock)
     samples, errors = run_reader(src, clock, 6.0)
     assert errors and set(errors) <= {"BusError", "SensorUnavailable"}
@@ -181,7 +182,7 @@ def test_bus_gone_and_back_reconnects_and_counts_the_outage():
 
 
 def test_data_ready_stall_is_counted_as_lost_samples_and_keeps_the_time_grid():
-    clock = FakeClock()
+    clock = ManualClock()
     src = sim_source(build_plan(parse_schedule("stall@1-1.5"), ADIS16405_RATE_HZ), clock)
     samples, errors = run_reader(src, clock, 3.0)
     assert not errors
@@ -208,7 +209,7 @@ def test_the_plain_sample_timer_hides_a_stall():
 
 
 def test_bursts_of_late_reads_lose_no_sample_silently():
-    clock = FakeClock()
+    clock = ManualClock()
     src = sim_source(FaultPlan(seed=2), clock)
     rng = np.random.default_rng(5)
 
@@ -223,7 +224,7 @@ def test_bursts_of_late_reads_lose_no_sample_silently():
 
 
 def test_garbage_and_short_reads_are_rejected_counted_and_accounted():
-    clock = FakeClock()
+    clock = ManualClock()
     plan = build_plan(parse_schedule("garbage@0.5-1.5:p=0.2;short_read@2-2.5:p=0.3"), ADIS16405_RATE_HZ)
     src = sim_source(plan, clock)
     samples, errors = run_reader(src, clock, 3.5)
@@ -245,7 +246,7 @@ def _pipeline_run(plan_text: str, seconds: float):
     from ahrsd.calibration.models import Calibration
     from ahrsd.estimator import make_estimator
 
-    clock = FakeClock()
+    clock = ManualClock()
     chip = SimulatedAdis16405("static", seed=4, clock=clock,
                               faults=build_plan(parse_schedule(plan_text), ADIS16405_RATE_HZ))
     src = ReconnectingSource(lambda: chip, open_chip_driver, "chip", clock=clock, reopen_same_bus=True)

@@ -83,8 +83,8 @@ def test_run_time_faults_start_on_the_grid_of_the_written_rate():
     plan there): the plan's sample 0 is the first sample whose data-ready edge comes after that read on the
     chip's grid (0.3 s at 819.2 SPS from power-on to the start, which wrote SMPL_PRD 7, then 204.85 SPS) — not
     1.8 s × 204.85 + 1, as if one rate had run since power-on: 0.3 s × (819.2 − 204.85) = 184 samples short."""
-    from reader_rig import FakeClock
     from sim_streams import FixedStream
+    from support.stepped_clock import ManualClock
 
     from ahrsd.drivers.faults import FaultPlan
     from ahrsd.drivers.ground_truth import BurstIndexTap, GroundTruthSource
@@ -92,7 +92,7 @@ def test_run_time_faults_start_on_the_grid_of_the_written_rate():
     from ahrsd.drivers.simulated import SimulatedAdis16405
     from ahrsd.drivers.source import open_chip_driver
 
-    clock = FakeClock(100.0)
+    clock = ManualClock(100.0)
     plan = FaultPlan(seed=0)
     fault = plan.add("stall", start_sample=0, stop_sample=10)
     later = plan.add("stall", start_sample=round(2.0 * 204.8))   # stall@2 (cli.fault_schedule: seconds × rate)

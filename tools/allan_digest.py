@@ -12,31 +12,32 @@ Run it in two checkouts (the same command in each worktree) and compare the line
   fixed (the deviance profile's fits) and over a grid of Gauss–Markov correlation times;
 - `analysis`: every field of the AllanResult of `analyse_static` on records like the tests' (white with a rate
   random walk, with flicker, with a Gauss–Markov bias, with quantization; gyro, accelerometer and magnetometer).
-The noise is made here, from fixed seeds, as tests/allan_noise.py makes it (independent of the analysis).
+The noise is tests/allan_noise.py's generators' (independent of the analysis), from fixed seeds.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import hashlib
-import math
+import sys
+from pathlib import Path
 
 import numpy as np
 
 from sim_digest import feed   # tools/, beside this script: the same bits of every value as the simulator's digest
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+import allan_noise as gen  # noqa: E402
+
 
 def _noise(n: int, rate_hz: float, seed: int, axes: int) -> np.ndarray:
-    from scipy.signal import lfilter
-
+    """(n, axes) rate samples: a bias of 0.3 with white, rate random walk, Gauss–Markov (from rest) and flicker noise
+    on each axis; the flicker's filter cut to 4096 taps and convolved directly, as the digests were first made."""
     rng = np.random.default_rng(seed)
-    white = rng.standard_normal((n, axes)) * 0.005 * math.sqrt(rate_hz)
-    walk = np.cumsum(rng.standard_normal((n, axes)), axis=0) * 2e-4 / math.sqrt(rate_hz)
-    phi = math.exp(-1.0 / (rate_hz * 30.0))
-    gm = lfilter([1.0], [1.0, -phi], rng.standard_normal((n, axes)) * 1e-3 * math.sqrt(1 - phi * phi), axis=0)
-    k = np.arange(1, min(n, 4096))
-    h = np.concatenate([[1.0], np.cumprod((0.5 + k - 1.0) / k)])
+    white = gen.white((n, axes), rate_hz, 0.005, rng)
+    walk = gen.rate_random_walk((n, axes), rate_hz, 2e-4, rng)
+    gm = gen.gauss_markov((n, axes), rate_hz, 1e-3, 30.0, rng, from_rest=True)
+    h = gen.kasdin_taps(min(n, 4096))
     flicker = np.stack([np.convolve(rng.standard_normal(n), h)[:n] * 1e-4 for _ in range(axes)], axis=1)
     return 0.3 + white + walk + gm + flicker
 

@@ -465,9 +465,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_heading_status.py", "tests/test_backstepping_aided_car.py")),
     # ------------------------------------------------------------------ session 28 (lead)
     Mutation("lever-arm-rate-cross-sign", "the lever-arm check's antenna velocity is C (ω × r), not C (r × ω)",
-             "estimator/lever_arm_fit.py", "    return c_bn @ skew(rate_b_rad_s)",
-             "    return -(c_bn @ skew(rate_b_rad_s))",
-             ("tests/test_lever_arm_fit.py",)),
+             "estimator/lever_arm_kernel.py", "    rate_cross = c_bn @ skew", "    rate_cross = -(c_bn @ skew)",
+             ("tests/test_lever_arm_kernel.py", "tests/test_lever_arm_fit.py")),
     Mutation("lever-arm-fit-corrections", "the filter's own velocity corrections do not enter the lever-arm fit",
              "estimator/ins_gnss_fusion.py",
              '            self.lever_arm_fit.fused(velocity_step, bool(res & core.R_VEL_REJECTED))',
@@ -1013,8 +1012,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              ("tests/test_turning_start.py",)),
     Mutation("turn-start-lean-sigma", "the start's tilt 1σ covers the lean its specific force allows",
              "estimator/ins_start.py",
-             "        P[i, i] = max(p.init_sigma_tilt_rad, lean_rad) ** 2",
-             "        P[i, i] = p.init_sigma_tilt_rad ** 2",
+             "        P[i, i] = max(p.init_sigma_tilt_rad, lean_rad, axis_sigma_rad) ** 2",
+             "        P[i, i] = max(p.init_sigma_tilt_rad, axis_sigma_rad) ** 2",
              ("tests/test_turning_start.py",)),
     Mutation("turn-start-lean-heading-sigma", "the start's yaw 1σ covers that lean through the dip",
              "estimator/ins_start.py",
@@ -1036,8 +1035,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ------------------------------------------------------------------ session 38 (cpu)
     Mutation("timer-one-question-keeps-state", "the reader's one question to its sample timer leaves the state the "
              "two (index_uncertain, fresh) left", "drivers/sample_timer.py",
-             "        self.lo, self.hi = lo, hi                    # fresh()'s _leak(read_time)",
-             "        self.hi = hi", ("tests/test_timer_fresh_if_certain.py",)),
+             "        self.lo = self._lo_fresh = lo",
+             "        self.lo = self._lo_fresh = self.lo if certain_only else lo",
+             ("tests/test_timer_fresh_if_certain.py",)),
     Mutation("timer-one-question-uncertain", "an uncertain index is not taken by the one question (the chip is asked)",
              "drivers/sample_timer.py", "            return None", "            pass", ("tests/test_timer_fresh_if_certain.py",)),
     Mutation("pipe-one-read-a-look", "a look at the reader process's pipe reads it once",
@@ -1103,11 +1103,6 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/mag_rotation.py", "turned = np.matmul(a, np.matmul(rt_i, moves))[..., 0]",
              "turned = np.matmul(rt_i, np.matmul(a, moves))[..., 0]", ("tests/test_mag_rotation.py",)),
     # ------------------------------------------------------------------ session 38 (fixl)
-    Mutation("mean-rate-row-order", "the arm's mean body rate adds the rows in their order, as numpy's sum does",
-             "estimator/lever_arm_fit.py",
-             "for t, (x, y, z) in zip(np.asarray(t_rows_s).tolist(), np.asarray(rate_rows_rad_s).tolist()):",
-             "for t, (x, y, z) in reversed(list(zip(np.asarray(t_rows_s).tolist(), "
-             "np.asarray(rate_rows_rad_s).tolist()))):", ("tests/test_lever_arm_fit.py",)),
     Mutation("history-search-wrapped", "the kept rows wrapping the ring's end are searched in both runs",
              "estimator/history_rows.py", "    if k < len(older):", "    if k <= len(older):",
              ("tests/test_history_rows.py",)),
@@ -1202,6 +1197,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("bank-lean-tolerance", "the lean the first fix tolerates is relevel_min_lean_rad (5°), not 30°",
              "estimator/gsf_yaw.py", "    if sin_lean <= math.sin(params.relevel_min_lean_rad):",
              "    if sin_lean <= 0.5:", ("tests/test_gsf_yaw_turning_restart.py",)),
+    Mutation("bank-axis-start-velocity-carried", "a start levelled on a turn's axis has its first fix's velocity "
+             "carried over the fix's delay", "estimator/ins.py",
+             "            carry_over_fix_delay(self._x)      # levelled on a turn's axis the attitude is right: the fix is late",
+             "            pass", ("tests/test_turning_start_axis_velocity.py",)),
     # ------------------------------------------------------------------ session 39 (rdc)
     Mutation("reader-split-wait-excluded", "bench/reader_calls.py --split counts the reader's CPU from a wake's "
              "return to the next wait, not the wait itself", "bench/reader_calls.py",
@@ -1261,4 +1260,61 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("boat-trust-yaw-passed", "the filter hands the rule its own yaw variance at the check",
              "estimator/heading_supervision.py", "yaw_var_rad2=float(self._P[core.E_YAW, core.E_YAW]))",
              "yaw_var_rad2=0.0)", ("tests/test_magnetometer_use_yaw.py",)),
+    # ------------------------------------------------------------------ session 40 (bank2)
+    Mutation("bank2-carry-rate-less-bias", "the first fix's velocity turns at the gyro's rate less its learned bias",
+             "estimator/ins_start.py", '- np.asarray(x["gyro_bias_rad_s"], dtype=float)))',
+             '- 0.0 * np.asarray(x["gyro_bias_rad_s"], dtype=float)))', ("tests/test_fix_delay_carry.py",)),
+    Mutation("bank2-carry-about-vertical", "the first fix's velocity turns at the rate about the vertical, not the "
+             "whole rate", "estimator/ins_start.py", "rate_down_rad_s = float(c[2] @ (",
+             "rate_down_rad_s = float(np.linalg.norm(", ("tests/test_fix_delay_carry.py",)),
+    Mutation("bank2-carry-turn-sign", "the first fix's velocity turns the way the vehicle turns",
+             "estimator/ins_start.py", "turn_rad = rate_down_rad_s * delay_s", "turn_rad = -rate_down_rad_s * delay_s",
+             ("tests/test_fix_delay_carry.py",)),
+    # ------------------------------------------------------------------ session 40 (rdfast)
+    Mutation("common-read-full-scale", "the reader's common read leaves a frame with an axis at full scale (or beyond "
+             "any plausible reading) to the driver's checks", "drivers/chip_source.py",
+             "or any(map(_ge, map(abs, raw9), driver._full_scale9))):", "or False):", ("tests/test_common_read.py",)),
+    Mutation("common-read-burst-bug", "the reader's common read leaves a frame suspected of the X-gyro burst bug to "
+             "the driver's register check", "drivers/chip_source.py", "if ((not (w1 & 0x2000) and (gx > ",
+             "if ((False and (gx > ", ("tests/test_common_read.py",)),
+    Mutation("common-read-alarm", "the reader's common read leaves a frame with EA set to the driver (DIAG_STAT read)",
+             "drivers/chip_source.py", "or (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & _EA",
+             "or (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & 0", ("tests/test_common_read.py",)),
+    Mutation("common-read-uncertain-index", "the reader's common read leaves a read whose index the clock leaves open "
+             "to the chip's index check", "drivers/chip_source.py", "timer.fresh_after_first(now, end, True)",
+             "timer.fresh_after_first(now, end, False)", ("tests/test_common_read.py",)),
+    Mutation("common-read-stuck-axis", "the reader's common read flags a stuck axis as the driver does",
+             "drivers/chip_source.py", "flags = _NEW_DATA | driver._check_stuck(raw9)",
+             "flags = _NEW_DATA; driver._check_stuck(raw9)", ("tests/test_common_read.py",)),
+    Mutation("common-read-gap", "the reader's common read flags GAP_BEFORE after lost samples",
+             "drivers/chip_source.py", "            flags |= _GAP_BEFORE", "            flags |= 0",
+             ("tests/test_common_read.py",)),
+    Mutation("pacing-own-sleep-quarter", "the reader's own wait counts a wake a quarter period late",
+             "drivers/threaded_source.py",
+             "if late_s > 0.25 * self.period_s or late_s * 1e6 > self.stats[\"wake_late_max_us\"]:",
+             "if late_s * 1e6 > self.stats[\"wake_late_max_us\"]:", ("tests/test_pacing_own_sleep.py",)),
+    Mutation("pacing-own-sleep-spaced", "the reader's own wait spaces the re-reads of a stalled chip",
+             "drivers/threaded_source.py", "        if self.last_stale:", "        if False:",
+             ("tests/test_pacing_own_sleep.py",)),
+    # ------------------------------------------------------------------ session 40 (tidy)
+    Mutation("lever-kernel-mean-bits", "the compiled mean body rate is the Python reference's to the bit: the rows' "
+             "sums divided by their count", "estimator/lever_arm_kernel.py", "wx, wy, wz = sx / n, sy / n, sz / n",
+             "wx, wy, wz = sx * (1.0 / n), sy * (1.0 / n), sz * (1.0 / n)", ("tests/test_lever_arm_kernel.py",)),
+    # ------------------------------------------------------------------ session 40 (startsig)
+    Mutation("startsig-row-sign", "the yaw error a tilt makes through the dip has the heading row's sign",
+             "estimator/ins_start.py", "return np.array([md * mn / mh2, md * me / mh2])",
+             "return np.array([-md * mn / mh2, -md * me / mh2])", ("tests/test_start_yaw_tilt_coupling.py",)),
+    Mutation("startsig-coupled-at-first-fix", "the first fix of a start levelled on the axis couples the yaw to the tilt",
+             "estimator/ins.py", "            self._couple_start_yaw_to_tilt()", "            pass",
+             ("tests/test_start_yaw_tilt_coupling.py",)),
+    Mutation("startsig-coupling-diagonal-only", "the coupling puts the tilt's covariance with the yaw, not only its variance",
+             "estimator/ins_start.py", "    P[:] = a @ P @ a.T",
+             "    P[core.E_YAW, core.E_YAW] = (a @ P @ a.T)[core.E_YAW, core.E_YAW]",
+             ("tests/test_start_yaw_tilt_coupling.py",)),
+    Mutation("startsig-axis-sigma-rate", "the axis's tilt 1σ is the bias across the rate over the rate",
+             "estimator/ins_start.py", "return math.atan2(rate_sigma_rad_s, wn) if wn > 0.0",
+             "return math.atan2(rate_sigma_rad_s, 2.0 * wn) if wn > 0.0", ("tests/test_start_yaw_tilt_coupling.py",)),
+    Mutation("startsig-axis-sigma-in-p", "a start levelled on the axis states at least the axis's tilt 1σ",
+             "estimator/ins_start.py", "        P[i, i] = max(p.init_sigma_tilt_rad, lean_rad, axis_sigma_rad) ** 2",
+             "        P[i, i] = max(p.init_sigma_tilt_rad, lean_rad) ** 2", ("tests/test_start_yaw_tilt_coupling.py",)),
 )

@@ -85,12 +85,30 @@ def _fault_plan(kind: str):
     return plan
 
 
+def read_once(src, clock: _HostClock, rng: np.random.Generator, period: float) -> bytes:
+    """One read of the chip source at its next read time plus a drawn lateness: what it gave as bytes (the
+    sample's hand-over record, b"-" for none, or the error's type and message)."""
+    from ahrsd.drivers.errors import DriverError
+    from ahrsd.drivers.process_source import pack
+
+    u = rng.random()
+    late = 20e-6 + 60e-6 * rng.random()
+    if u < 0.05:
+        late += 0.25 * period
+    elif u < 0.06:
+        late += (1.0 + 3.0 * rng.random()) * period
+    clock.t = max(clock.t, src.next_read_time()) + late
+    try:
+        s = src.read_one(clock.t)
+    except DriverError as exc:
+        return f"E{type(exc).__name__}:{exc}".encode()
+    return b"-" if s is None else pack([s])
+
+
 def case_digest(kind: str, records: bool, reads: int) -> str:
     from ahrsd.drivers import registers as R
     from ahrsd.drivers.adis16405 import Adis16405
     from ahrsd.drivers.chip_source import ChipSource
-    from ahrsd.drivers.errors import DriverError
-    from ahrsd.drivers.process_source import pack
     from ahrsd.drivers.simulated import SimulatedAdis16405
     from ahrsd.drivers.sample_timer import StallAwareSampleTimer
 
@@ -106,20 +124,7 @@ def case_digest(kind: str, records: bool, reads: int) -> str:
     h = hashlib.md5()
     pack_f = struct.Struct("<4d2q").pack
     for _ in range(reads):
-        u = rng.random()
-        late = 20e-6 + 60e-6 * rng.random()
-        if u < 0.05:
-            late += 0.25 * period
-        elif u < 0.06:
-            late += (1.0 + 3.0 * rng.random()) * period
-        clock.t = max(clock.t, src.next_read_time()) + late
-        try:
-            s = src.read_one(clock.t)
-        except DriverError as exc:
-            h.update(f"E{type(exc).__name__}:{exc}".encode())
-            s = None
-        else:
-            h.update(b"-" if s is None else pack([s]))
+        h.update(read_once(src, clock, rng, period))
         t = src.timer
         h.update(pack_f(t.lo if t.lo is not None else -1.0, t.hi if t.hi is not None else -1.0, t._t_lo, t._t_hi,
                         t.k, t._consumed_upto))

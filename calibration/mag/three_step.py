@@ -21,6 +21,7 @@ import numpy as np
 
 from .acceptance import assess, centred, conditioning_refusal, prepare
 from .fit_types import MagFitInput, MagFitResult, refuse
+from .two_step import inverse_mapping
 from ..models import MagModel
 
 METHOD = "three-step"
@@ -80,19 +81,15 @@ def s_gamma_from_x(x: np.ndarray) -> tuple[np.ndarray, dict]:
 
 
 def b_k_alpha_from_s_gamma(s: np.ndarray, gamma: dict, field_ut: float):
-    """Step 3: (S, γ) → b′, b, k, α."""
-    s1, s2, s3, s4, s5, s6 = s
-    bpx, bpy, bpz = -0.5 * s1, -s3 / (2 * s2), -s5 / (2 * s4)
-    kx2 = (bpx**2 + s2 * bpy**2 + s4 * bpz**2 - s6) / field_ut**2
-    if not kx2 > 0:
-        raise ValueError(f"k_x² = {kx2:.4g} ≤ 0: not an ellipsoid")
-    kx = np.sqrt(kx2)
-    ky, kz = np.sqrt(kx2 / s2), np.sqrt(kx2 / s4)
+    """Step 3: (S, γ) → b′, b, k, α. S has the two-step form with b′ in place of b: b′ and k are the two-step's
+    inverse mapping of S."""
+    b_prime, k = inverse_mapping(s, field_ut)
+    (bpx, bpy, bpz), (kx, ky, kz) = b_prime, k
     alpha = {"yz": gamma["yz"] * ky / kx, "zy": gamma["zy"] * kz / kx, "zx": gamma["zx"] * kz / ky}
     bz = bpz
     by = bpy + gamma["zx"] * bz
     bx = bpx + gamma["yz"] * by - gamma["zy"] * bz
-    return np.array([bpx, bpy, bpz]), np.array([bx, by, bz]), np.array([kx, ky, kz]), alpha
+    return b_prime, np.array([bx, by, bz]), k, alpha
 
 
 def solve(mag_ut: np.ndarray, field_ut: float) -> ThreeStepParameters:

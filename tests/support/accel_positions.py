@@ -1,4 +1,5 @@
-"""Orientations for multi-position accelerometer calibration tests: which body vector points up."""
+"""Orientations for multi-position accelerometer calibration tests: which body vector points up; the bench
+recording of 24 held positions."""
 
 from __future__ import annotations
 
@@ -8,6 +9,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ahrsd.calibration.inertial.accel import GUIDED_TARGETS
+from ahrsd.core.sample import make_sample
+from ahrsd.drivers.recording import RecordingWriter
+from ahrsd.simulation import SensorErrors, simulate
 
 
 def up_vectors(n_random: int = 0) -> np.ndarray:
@@ -57,3 +61,16 @@ def position_holds(n_positions: int = 24, hold_s: float = 3.0, slew_s: float = 1
             return tuple(np.radians(a[:, i]) for i in range(3))
 
     return PositionHolds(), windows, ups
+
+
+def holds_recording(path, hold_s: float, seed: int = 5, rate_hz: float = 100.0):
+    """A recording at `path` (with temp_c) of the simulated ADIS16405, its error model's bias, scale and
+    misalignment injected (seed `seed`), through `position_holds(24, hold_s, 1 s slews)`: (block, windows, errors)."""
+    scenario, windows, _ = position_holds(24, hold_s=hold_s, slew_s=1.0)
+    errors = SensorErrors.adis16405(seed=seed)
+    block = simulate(scenario, windows[-1][1], rate_hz=rate_hz, seed=seed, errors=errors)
+    with RecordingWriter(path, extra_columns=("temp_c",)) as w:
+        for i in range(len(block)):
+            w.write(make_sample(block.t_s[i], block.gyro_rad_s[i], block.accel_m_s2[i], block.mag_ut[i]),
+                    temp_c=block.temp_c[i])
+    return block, windows, errors

@@ -19,12 +19,24 @@ class GateCounters:
         return dataclasses.asdict(self)
 
 
-class FakeAided:
+class WithoutLeverArmCheck:
+    """The lever-arm part of an aided estimator (estimator.base.GnssAidedEstimator) for the fakes: the antenna told
+    at the IMU, and no lever-arm check to say anything or adopt an arm."""
+
+    lever_arm_m = (0.0, 0.0, 0.0)
+
+    def lever_arm_fit(self):
+        return None    # the lever-arm check has nothing to say
+
+    def lever_arm_adopted_m(self):
+        return None    # nor adopted an arm
+
+
+class FakeAided(WithoutLeverArmCheck):
     """An 'aided' estimator (it has update_gnss): a fixed attitude, records the fixes it is offered, and a
     navigation state once it has one. `flags` is what its estimates carry."""
 
     name = "fake-aided"
-    lever_arm_m = (0.0, 0.0, 0.0)
 
     def __init__(self):
         self.fixes = []
@@ -34,14 +46,6 @@ class FakeAided:
     def update_gnss(self, fix):
         self.fixes.append(fix)
         return 0
-
-    def lever_arm_fit(self):
-        return None    # the lever-arm check has nothing to say
-
-
-    def lever_arm_adopted_m(self):
-
-        return None    # nor adopted an arm
 
     def update(self, sample):
         nav = None

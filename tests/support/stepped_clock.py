@@ -14,6 +14,20 @@ import threading
 from ahrsd.drivers.sim_clock import ChipClock
 
 
+class ManualClock(ChipClock):
+    """A clock only the test moves: it reads `t`, which the test sets, and a wait (`sleep`) advances it by the wait
+    (a negative one by nothing). No `sleep_until` of its own: nothing the tests drive with it waits for a time."""
+
+    def __init__(self, t: float = 100.0):
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.t += max(0.0, seconds)
+
+
 class SteppedClock(ChipClock):
     def __init__(self, t: float = 100.0, patience_s: float = 10.0):
         self.t = t
