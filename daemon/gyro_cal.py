@@ -59,7 +59,9 @@ class GyroBiasCalibration:
         self._remove = None
 
     def start(self) -> CommandAck:
-        self._remove = self.listeners.add(self.on_sample, in_place=True)    # the estimate is not used
+        # the estimate is not used, and the calibration is swapped after the samples (call_soon): the estimator may
+        # step a run of samples before this listener (sample_reader.SampleListeners)
+        self._remove = self.listeners.add(self.on_sample, in_place=True, steps_ahead=_always)
         # samples can stop (sensor failure): never leave the command IN_PROGRESS for ever
         self.loop.call_later(3 * DURATION_S + 2.0, self.cancel, "no samples from the sensor")
         self.health.calibrating = "gyro calibration"
@@ -125,3 +127,7 @@ class GyroBiasCalibration:
         severity = mavlink.MAV_SEVERITY_INFO if result == mavlink.MAV_RESULT_ACCEPTED else mavlink.MAV_SEVERITY_WARNING
         self.outbound.statustext(severity, text)
         self.ctx.finish(result)
+
+
+def _always() -> bool:
+    return True

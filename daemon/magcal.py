@@ -692,6 +692,12 @@ class FieldCalibrationPart:
         self.protocol.register(commands)
         autopilot.add_gnss_listener(self.protocol.on_gnss_message)
 
+    def steps_ahead(self) -> bool:
+        """The listener's word to the daemon's sample reader (sample_reader.SampleListeners): while no session runs
+        it keeps the in-place estimate without reading it (a fixed-yaw calibration reads it later, between
+        blocks) and swaps no calibration at a sample, so the estimator may step a run of samples before it."""
+        return not self.protocol.calibrating
+
     def on_sample(self, sample, estimate) -> None:
         """The daemon's sample listener (event loop, every sample; added in place: `estimate` is read in place,
         daemon.sample_reader.SampleListeners). The session fits in the sensor frame, so it gets the pipeline's

@@ -21,7 +21,7 @@ import numpy as np
 
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.core.sample_block import SampleBlock, sample_flags
-from ahrsd.estimator.base import SteppingEstimator
+from ahrsd.estimator.base import BlockSteppingEstimator, SteppingEstimator
 from ahrsd.estimator.rotations import euler_to_dcm
 
 log = logging.getLogger(__name__)
@@ -77,8 +77,10 @@ class Pipeline:
     @estimator.setter
     def estimator(self, estimator) -> None:
         self._estimator = estimator
-        # the cheap hot path where the estimator has one (estimator.base.SteppingEstimator)
+        # the cheap hot path where the estimator has one (estimator.base.SteppingEstimator), and its block step
+        # where it has that too (ins: Ins.step_block)
         self._step = estimator.step if isinstance(estimator, SteppingEstimator) else None
+        self._step_block = estimator.step_block if isinstance(estimator, BlockSteppingEstimator) else None
 
     def set_mounting(self, rpy_deg) -> None:
         self.mounting = mounting_matrix(rpy_deg)
@@ -123,16 +125,27 @@ class Pipeline:
         take `last_estimate` to keep it), else its AttitudeEstimate."""
         return next(self.process_block(SampleBlock.of((raw,))))
 
-    def process_block(self, block: SampleBlock):
+    def process_block(self, block: SampleBlock, stepped_ahead: bool = False):
         """Every sample of `block` through calibration, mounting and the estimator, in order, as a generator:
         yields each sample's estimate (read it before the next one). The block's vectors are calibrated and
         rotated at once, one (n, 9) · (9, 9) product (`block_map`: the calibration's affine maps followed by the
         mounting), and only the calibrated ImuSample of each row is built. A calibration or mounting swapped
-        between two samples (a listener's) takes effect from the next one."""
+        between two samples (a listener's) takes effect from the next one.
+
+        `stepped_ahead`: the caller allows the estimator to step a run of the block's samples in one call, before
+        their estimates are yielded (an estimator with `step_block`: Ins.step_block). Each sample's estimate then
+        carries that sample's time and flags, but a snapshot built from it (`last_estimate`) is that of the run's
+        last sample, and a calibration swapped meanwhile applies from the run's end: allowed only where nothing
+        does either while the block is processed (daemon.sample_reader: its listeners say so)."""
         t_s, temp_c, supply_v, diag, counter = block.t_s, block.temp_c, block.supply_v, block.diag_stat, block.counter
         raw_flags = block.flags
         c = self.counters
         cal = m = None
+        step_block = self._step_block if stepped_ahead else None
+        if step_block is not None:
+            t_arr = np.array(t_s, dtype=np.float64)      # the kernel's types (Ins.step_block)
+            flags_arr = np.array(raw_flags, dtype=np.int64)
+        ahead = 0                 # the samples below it were stepped in a run (their flags: run_flags[i - run_first])
         # every sample of the daemon (819.2 a second) goes through this loop: the counting and the estimator's
         # step are written out in it, one Python call each fewer per sample; only a flagged sample (a gap, an
         # invalid axis), a rejected one or an estimator without `step` take a call
@@ -153,6 +166,18 @@ class Pipeline:
                 self._sensor, self._sensor_sample = (block, i, cal), None
             sample = self.last_sample = ImuSample(t_s[i], r[0:3], r[3:6], r[6:9], temp_c[i], supply_v[i],
                                                   sample_flags(flags), diag[i], counter[i])
+            if step_block is not None and i >= ahead:
+                run = step_block(t_arr[i:], np.ascontiguousarray(rows[i - first:]), flags_arr[i:])
+                if run is None:              # the estimator steps one by one for now: the rest of the block so
+                    step_block = None
+                else:
+                    run_flags, view = run
+                    run_first, ahead = i, i + len(run_flags)
+            if i < ahead:
+                view.set(t_s[i], run_flags[i - run_first], True)
+                self._view, self._snapshot = view, None
+                yield view
+                continue
             step = self._step
             if step is None:
                 yield self._estimate(sample)

@@ -40,6 +40,15 @@ class SteppingEstimator(Estimator, Protocol):
 
 
 @runtime_checkable
+class BlockSteppingEstimator(SteppingEstimator, Protocol):
+    """A stepping estimator that also steps a run of a block's samples in one call (ins: `Ins.step_block(t_s,
+    rows, sample_flags)` → the stepped samples' flags and its view, or None to step them one by one); the daemon's
+    pipeline uses it where the reader's listeners allow (daemon/pipeline.py `process_block`)."""
+
+    def step_block(self, t_s, rows, sample_flags) -> tuple[list, EstimateView] | None: ...
+
+
+@runtime_checkable
 class GnssAidedEstimator(Protocol):
     """An estimator that takes GNSS fixes (ins): `update_gnss(fix)` returns the core.R_* bits of what became of
     the fix and never raises on bad input; `gnss_counters` counts what became of the fixes offered (offered,

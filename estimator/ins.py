@@ -39,6 +39,7 @@ from .gnss_intake import GnssCounters, GnssFixIntake
 from .heading_monitor import HeadingCheckRecord
 from .heading_publication import HeadingReport
 from .iron_in_use import IronInUse
+from .ins_step_block import fast_step_block
 from .ins_start import (axis_levelling_sigma_rad, carry_over_fix_delay, couple_yaw_to_tilt, first_fix_in_turn,
                         first_history_row, fresh_state, initial_covariance, initial_true_attitude, learned_to_keep,
                         levelling_force, levelling_lean, start_mag_reference, start_sensor_errors,
@@ -59,7 +60,8 @@ from .constrained_update import scalar_update
 from .params import with_overrides
 from .estimate_view import BuiltEstimateView, EstimateView
 from .field_circle import FieldCircleCheck, FieldCircleParams, FieldCircleResult
-from .published_heading import PublishedHeading
+from .published_heading import FOLLOWING, PublishedHeading, published_offset_step, published_reset
+from .slewed_yaw_kernel import slew_step
 from .start_rerun import StartRecording, keep_iron, put_back_iron, start_heading
 from .yaw_reset import restart_uncorrelated
 from .rotations import quat_to_dcm
@@ -442,6 +444,7 @@ _OUT_VEL, _OUT_SIGMA_VEL, _OUT_SIGMA_POS, _OUT_ACCEL_BIAS = (float_field_slice(c
     "vel_ned_m_s", "sigma_vel_m_s", "sigma_pos_m", "accel_bias_m_s2"))
 _OUT_SIGMA_YAW = _OUT_SIGMA.start + 2
 _F_GNSS_AIDED, _F_INITIALISING = core.F_GNSS_AIDED, core.F_INITIALISING   # read per sample: no module lookup
+_BLOCK_MAX = 64      # samples a block step takes at most (a daemon block holds ~12; a longer one takes more calls)
 
 
 class Ins:
@@ -512,6 +515,9 @@ class Ins:
         self._gsf = self._gsf_arr[0]
         self._par["gnss_yaw"] = 1.0 if self.params.gnss_yaw else 0.0
         self._step = core.fast_step(self._step_args_example())
+        # a run of a block's samples through the kernel in one call (step_block), each sample's flags kept
+        self._block_flags = np.zeros(_BLOCK_MAX, np.int64)
+        self._step_block = fast_step_block(self._step_block_args_example())
         self._load_python_called_kernels()
         # a usable fix into the state, the lever-arm check, the velocity a yaw reset sets (ins_gnss_fusion.py)
         self._fusion = InsGnssFusion(self._x_arr, self._P, self._hist, self._par_arr, self._gsf_arr,
@@ -527,7 +533,6 @@ class Ins:
         # the magnetometer's calibration-error states: the heading harmonics and the frame tilt (mag_error_states.py)
         self._mag_errors = MagErrorStates(self._x, self._P, self._par, self._learned_iron)
         self._published = PublishedHeading(self.params.published_yaw_slew_rad_s)
-        self._published_since_init = False
         self._view = BuiltEstimateView(self._build_estimate)   # step()'s result: the estimate built on demand
         # before the first fix the calibration is checked by the circle its levelled field sweeps in turns
         self._field_circle = FieldCircleCheck(FieldCircleParams(mag_noise_ut=self.params.mag_noise_ut))
@@ -549,6 +554,14 @@ class Ins:
                 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, 0, np.zeros(1, core.INS_OUT_DTYPE), gsf,
                 self._gsf_par_arr)
 
+    def _step_block_args_example(self) -> tuple:
+        """Scratch arguments of the block step's types (the filter's own arrays stay untouched)."""
+        x, P, hist, par = self._step_args_example()[:4]
+        out = np.zeros(1, core.INS_OUT_DTYPE)
+        gsf = _one_record_array(new_gsf_state(GsfParams(), 0.0))
+        return (x, P, hist, par, np.zeros(1), np.zeros((1, 9)), np.zeros(1, np.int64), 0.0, out, gsf,
+                self._gsf_par_arr, np.zeros_like(self._block_flags), PublishedHeading(1.0).state, 1.0)
+
     def _load_python_called_kernels(self) -> None:
         """Load the kernels this class calls from Python (numba's on-disk cache) for the types it calls them with,
         once per process, here at construction: a kernel's first call types its arguments and loads its machine
@@ -568,7 +581,10 @@ class Ins:
                 (core._correct_history, (self._hist, x, 0.0, dx, 0.0, 0.0, 0.0)),
                 (core._rotate_attitude, (x["q"], 0.0, 0.0, 0.0)),
                 (core.fill_outputs, (x, self._P, par, 0.0, 0.0, 0.0, self._out)),
-                (input_validity, (0,) + (0.0,) * 9)):
+                (input_validity, (0,) + (0.0,) * 9),
+                (published_offset_step, (PublishedHeading(1.0).state, 1.0) + (0.0,) * 7),
+                (published_reset, (PublishedHeading(1.0).state,)),
+                (slew_step, (0.0,) * 5)):
             kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
         _PYTHON_CALLED_KERNELS_LOADED = True
 
@@ -821,6 +837,47 @@ class Ins:
             return self._view
         return self._stepped(sample.t_s, self._after_init_flags() | extra)
 
+    def step_block(self, t_s: np.ndarray, rows: np.ndarray,
+                   sample_flags: np.ndarray) -> tuple[list, EstimateView] | None:
+        """The samples t_s (n,) float64, rows (n, 9) float64 (gyro rad/s, accel m/s², mag µT; C-contiguous) and
+        sample_flags (n,) int64 stepped from the first as `step` would step them one by one, in one compiled call
+        as far as nothing between two samples needs Python (ins_step_block.py): up to a queued fix falling due, the
+        field-circle check's next sample (before the first fix), a sample that needs the filter (re)started, at most
+        _BLOCK_MAX. Returns the stepped samples' estimate flags
+        (k of them, maybe none: step the next sample with `step`) and the view, left at the last of them (None:
+        none is stepped in a run while the filter is not started or records its start: step the samples with
+        `step`); a
+        caller that hands on each sample's estimate sets the view to each in turn (`view.set(t_s[j], flags[j],
+        True)`): its flags are that sample's, but a snapshot built from it is the last sample's (the filter has
+        moved on), so a caller that builds one at every sample steps sample by sample. Output-identical to `step`
+        (tests/test_ins_step_block.py)."""
+        if not self._initialised or self._start_recording is not None:     # the start's recording keeps every sample
+            return None
+        queue = self._fix_queue
+        # `step` fuses a queued fix after the first sample that reaches it (the intake queues only fixes ahead of
+        # the samples), and before the first fix checks the field circle at the first sample from its due time on:
+        # that sample is stepped alone
+        stop_t_s = float(queue[0].t_s) if queue else math.inf
+        if self._field_circle_on and not self._heading.ever_aided:
+            stop_t_s = min(stop_t_s, self._field_circle.due_t_s)
+        published = self._published
+        k = self._step_block(self._x_arr, self._P, self._hist, self._par_arr, t_s, rows, sample_flags, stop_t_s,
+                             self._out_arr, self._gsf_arr, self._gsf_par_arr, self._block_flags, published.state,
+                             published.max_rate_rad_s)
+        if not k:
+            return [], self._view
+        flags = self._block_flags[:k].tolist()
+        # what `_after_step` does besides the slew (the kernel's): the flags held for the next estimate go with the
+        # first sample, the first aided sample is told to the heading checks (which only the field-circle check,
+        # run before the first fix and so never in a run then, reads at a sample)
+        if self._pending_flags:
+            flags[0] |= self._pending_flags
+            self._pending_flags = 0
+        if not self._heading.ever_aided and any(f & _F_GNSS_AIDED for f in flags):
+            self._heading.gnss_aided()
+        self._view.set(float(t_s[k - 1]), flags[-1], True)
+        return flags, self._view
+
     # ----------------------------------------------------------------------- GNSS
     def update_gnss(self, fix: GnssFix) -> int:
         """Offer one fix. Returns core.R_* bits (0 when it was not fused or was held for later). Bad fixes
@@ -1026,7 +1083,7 @@ class Ins:
         hypotheses and only moves its clock on."""
         self._intake.drop_queued()
         self._published.reset()
-        self._published_since_init = False
+        self._published.state[FOLLOWING] = 0.0
         self._fusion.restart()
         if not self._reinit_pending or not self.params.gnss_yaw:
             gsf_reset(self._gsf, self._gsf_par, float(t_s), np.full(4, np.nan))
@@ -1039,9 +1096,15 @@ class Ins:
         return f
 
     def _stepped(self, t_s: float, f: int) -> EstimateView:
-        """What moves with every sample (the published-heading slew integrates over sample time, so what is
-        published does not depend on how often an estimate is built); the estimate itself is built on demand
-        (`_build_estimate`)."""
+        """What moves with every sample (`_after_step`); the estimate itself is built on demand (`_build_estimate`)."""
+        self._view.set(t_s, self._after_step(t_s, f), True)
+        return self._view
+
+    def _after_step(self, t_s: float, f: int) -> int:
+        """What follows every stepped sample, given its flags: the flags held for the next estimate merged, the first
+        aided sample told to the heading checks, the published-heading slew (it integrates over sample time, so what
+        is published does not depend on how often an estimate is built; a run of samples steps it in its kernel,
+        ins_step_block.py). Returns the flags."""
         if self._pending_flags:
             f |= self._pending_flags
             self._pending_flags = 0
@@ -1049,12 +1112,12 @@ class Ins:
             self._heading.gnss_aided()
         # nothing published since the filter started (INITIALISING from its start): the published heading follows
         # the filter, as _restart_companions left it reset (it moves only in `update`, not called until then)
-        if self._published_since_init or not f & _F_INITIALISING:
+        published = self._published
+        if published.state[FOLLOWING] or not f & _F_INITIALISING:
             r = self._out_flat[_OUT_RATE_TO_EULER].tolist()     # one call: rate first, then σ, …, Euler angles last
-            self._published.update(t_s, r[-1], r[-3], r[-2], r, r[_STEP_SIGMA_YAW])
-            self._published_since_init = True
-        self._view.set(t_s, f, True)
-        return self._view
+            published.update(t_s, r[-1], r[-3], r[-2], r, r[_STEP_SIGMA_YAW])
+            published.state[FOLLOWING] = 1.0
+        return f
 
     def _build_estimate(self, t_s: float, f: int, initialised: bool) -> AttitudeEstimate:
         """The AttitudeEstimate of the sample stepped last (EstimateView.snapshot)."""

@@ -22,66 +22,97 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+from numba import njit
+
 from .slewed_yaw import YawSlew
+from .slewed_yaw_kernel import slew_step
 
 _TWO_PI = 2.0 * math.pi
 _MIN_COS_PITCH = 1e-3    # at ±90° pitch yaw is undefined: every change there counts as motion
+# the state's slots (`PublishedHeading.state`, what the compiled step reads and writes)
+OFFSET, T_S, YAW, YAW_RATE, ABSORBED, FOLLOWING = range(6)
 
 
 class PublishedHeading:
     """Offset (rad) to add to the filter's yaw for the published yaw. `update` once per sample (ins's step: the
     slew integrates over sample time, however seldom an estimate is built); `reset` when the filter
-    re-initialises (the published heading then starts again from the filter's)."""
+    re-initialises (the published heading then starts again from the filter's). The state is one float64 array
+    (`state`: the offset, the last sample's time, yaw and yaw rate, the samples absorbed, and whether the filter's
+    estimates are followed yet, which ins sets), so that ins's compiled run of a block's samples steps it too
+    (ins_step_block.py), with the same compiled step (`published_offset_step`)."""
 
     def __init__(self, max_rate_rad_s: float):
         if not (max_rate_rad_s > 0.0):
             raise ValueError(f"max_rate_rad_s must be > 0, got {max_rate_rad_s!r}")
         self.max_rate_rad_s = float(max_rate_rad_s)
-        self._slew = YawSlew(self.max_rate_rad_s)
-        self.offset_rad = 0.0
-        self.absorbed = 0            # samples at which a correction faster than the rate was absorbed
-        self._t_s = math.nan
-        self._yaw = math.nan
-        self._yaw_rate = math.nan
+        self.state = np.array([0.0, math.nan, math.nan, math.nan, 0.0, 0.0])
+
+    @property
+    def offset_rad(self) -> float:
+        return float(self.state[OFFSET])
+
+    @property
+    def absorbed(self) -> int:
+        """Samples at which a correction faster than the rate was absorbed."""
+        return int(self.state[ABSORBED])
 
     def reset(self) -> None:
-        self.offset_rad = 0.0
-        self._t_s = math.nan
-        self._yaw = math.nan
-        self._yaw_rate = math.nan
+        published_reset(self.state)
 
     def update(self, t_s: float, yaw_rad: float, roll_rad: float, pitch_rad: float, rate_body_rad_s,
                sigma_rad: float = 0.0) -> float:
         """The offset for the filter's yaw (any north: only differences are used) at t_s, its roll, pitch,
         bias-corrected body rate (rad/s) and yaw 1σ (with the offset it sets the slew rate: slewed_yaw.py)."""
-        # once per sample at 819.2 SPS, so written out without helper calls (a call costs more than its
-        # arithmetic) but the slew's step, shared with the daemon: ψ̇ of the ZYX kinematics, and angles
-        # wrapped to ±π as (a + π) mod 2π − π
-        cp = math.cos(pitch_rad)
-        if abs(cp) < _MIN_COS_PITCH:
-            rate = math.nan
-        else:
-            rate = (rate_body_rad_s[1] * math.sin(roll_rad) + rate_body_rad_s[2] * math.cos(roll_rad)) / cp
-        dt = t_s - self._t_s
-        if not (dt > 0.0) or not math.isfinite(self._yaw) or not math.isfinite(yaw_rad):
-            if not math.isfinite(yaw_rad):
-                self.reset()
-            else:
-                self._t_s, self._yaw, self._yaw_rate = t_s, yaw_rad, rate
-            return self.offset_rad
-        change = (yaw_rad - self._yaw + math.pi) % _TWO_PI - math.pi
-        if math.isfinite(rate) and math.isfinite(self._yaw_rate):
-            correction = (change - 0.5 * (rate + self._yaw_rate) * dt + math.pi) % _TWO_PI - math.pi
-        else:
-            correction = 0.0
-        self._t_s, self._yaw, self._yaw_rate = t_s, yaw_rad, rate
-        o = (self.offset_rad - correction + math.pi) % _TWO_PI - math.pi
-        move, arrived = self._slew.step(o, sigma_rad, dt)
-        if not arrived and abs(correction) > abs(move):      # more came in than one step takes out
-            self.absorbed += 1
-        self.offset_rad = o + move
-        return self.offset_rad
+        return published_offset_step(self.state, self.max_rate_rad_s, float(t_s), float(yaw_rad), float(roll_rad),
+                                     float(pitch_rad), float(rate_body_rad_s[1]), float(rate_body_rad_s[2]),
+                                     float(sigma_rad))
 
     def published_sigma(self, sigma_rad: float) -> float:
         """The published yaw 1σ for the filter's 1σ: σ + |offset|/3 (slewed_yaw.py)."""
-        return self._slew.sigma_rad(sigma_rad, self.offset_rad) if self.offset_rad else sigma_rad
+        offset = self.offset_rad
+        return YawSlew.sigma_rad(sigma_rad, offset) if offset else sigma_rad
+
+
+@njit(cache=True)
+def published_reset(state) -> None:
+    """PublishedHeading.reset on its state array: the published heading starts again from the filter's."""
+    state[OFFSET] = 0.0
+    state[T_S] = math.nan
+    state[YAW] = math.nan
+    state[YAW_RATE] = math.nan
+
+
+@njit(cache=True)
+def published_offset_step(state, max_rate_rad_s, t_s, yaw_rad, roll_rad, pitch_rad, rate_y_rad_s, rate_z_rad_s,
+                          sigma_rad):
+    """PublishedHeading.update on its state array: returns the new offset. ψ̇ of the ZYX kinematics, and angles
+    wrapped to ±π as (a + π) mod 2π − π."""
+    cp = math.cos(pitch_rad)
+    if abs(cp) < _MIN_COS_PITCH:
+        rate = math.nan
+    else:
+        rate = (rate_y_rad_s * math.sin(roll_rad) + rate_z_rad_s * math.cos(roll_rad)) / cp
+    dt = t_s - state[T_S]
+    if not (dt > 0.0) or not math.isfinite(state[YAW]) or not math.isfinite(yaw_rad):
+        if not math.isfinite(yaw_rad):
+            published_reset(state)
+        else:
+            state[T_S] = t_s
+            state[YAW] = yaw_rad
+            state[YAW_RATE] = rate
+        return state[OFFSET]
+    change = (yaw_rad - state[YAW] + math.pi) % _TWO_PI - math.pi
+    if math.isfinite(rate) and math.isfinite(state[YAW_RATE]):
+        correction = (change - 0.5 * (rate + state[YAW_RATE]) * dt + math.pi) % _TWO_PI - math.pi
+    else:
+        correction = 0.0
+    state[T_S] = t_s
+    state[YAW] = yaw_rad
+    state[YAW_RATE] = rate
+    o = (state[OFFSET] - correction + math.pi) % _TWO_PI - math.pi
+    move, arrived = slew_step(max_rate_rad_s, 0.0, o, sigma_rad, dt)
+    if not arrived and abs(correction) > abs(move):      # more came in than one step takes out
+        state[ABSORBED] += 1.0
+    state[OFFSET] = o + move
+    return state[OFFSET]

@@ -35,8 +35,8 @@ LARGE_OFFSET_MAX_RATE_RAD_S = math.radians(2.0)
 
 class YawSlew:
     """One rule for every slewed yaw: the published yaw moves towards the estimator's at no more than `rate_rad_s`
-    (slew_rate_rad_s: slower while the σ sent is above EKF3's floor), all the way once it is within that step or
-    within `arrive_within_rad`; the σ sent with it is sigma_rad (σ + |offset|/3)."""
+    (slower while the σ sent is above EKF3's floor: `slew_step`), all the way once it is within that step or within
+    `arrive_within_rad`; the σ sent with it is sigma_rad (σ + |offset|/3)."""
 
     __slots__ = ("rate_rad_s", "arrive_within_rad")
 
@@ -48,15 +48,7 @@ class YawSlew:
         """(move, arrived) over dt_s for a published yaw `offset_rad` off the estimator's (published − estimator's,
         within ±π), the estimator's yaw 1σ being `sigma_rad`: the move to add to the published yaw, −offset_rad
         when it arrives, else the step against the offset."""
-        size = abs(offset_rad)
-        # within the step of the least rate slew_rate_rad_s can give, it arrives at any σ: the rate is not worked
-        # out (the routine case: ins's published heading asks at every sample)
-        if size <= min(self.rate_rad_s, LARGE_OFFSET_MAX_RATE_RAD_S) * dt_s:
-            return -offset_rad, True
-        allowed = slew_rate_rad_s(self.rate_rad_s, sigma_rad, offset_rad) * dt_s
-        if size <= allowed or size <= self.arrive_within_rad:
-            return -offset_rad, True
-        return -math.copysign(allowed, offset_rad), False
+        return slew_step(self.rate_rad_s, self.arrive_within_rad, offset_rad, sigma_rad, dt_s)
 
     @staticmethod
     def sigma_rad(sigma_rad: float, offset_rad: float) -> float:
@@ -65,10 +57,22 @@ class YawSlew:
         return sigma_rad + abs(offset_rad) / 3.0
 
 
-def slew_rate_rad_s(rate_rad_s: float, sigma_rad: float, offset_rad: float) -> float:
-    """The rate to slew at, for a configured `rate_rad_s`, the estimator's 1σ and the offset still to come:
-    no more than LARGE_OFFSET_MAX_RATE_RAD_S while the σ sent for that offset (YawSlew.sigma_rad's rule, which
-    EKF3's floor was compared with, whatever σ a subclass sends) is above EKF3's floor."""
-    if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and YawSlew.sigma_rad(sigma_rad, offset_rad) > EKF3_YAW_FLOOR_RAD:
-        return LARGE_OFFSET_MAX_RATE_RAD_S
-    return rate_rad_s
+def slew_step(rate_rad_s: float, arrive_within_rad: float, offset_rad: float, sigma_rad: float,
+              dt_s: float) -> tuple[float, bool]:
+    """YawSlew.step of a slew at `rate_rad_s` that arrives within `arrive_within_rad`. Plain arithmetic that numba
+    compiles as it is (slewed_yaw_kernel.py: ins's published heading steps it at every sample, inside its compiled
+    run of a block's samples too), so it calls no Python function: the rate (no more than
+    LARGE_OFFSET_MAX_RATE_RAD_S while the σ sent for the offset, YawSlew.sigma_rad's σ + |offset|/3, which EKF3's
+    floor was compared with, is above EKF3's floor) is worked out here."""
+    size = abs(offset_rad)
+    # within the step of the least rate the slew can go at, it arrives at any σ: the rate is not worked out (the
+    # routine case: ins's published heading asks at every sample)
+    if size <= min(rate_rad_s, LARGE_OFFSET_MAX_RATE_RAD_S) * dt_s:
+        return -offset_rad, True
+    rate = rate_rad_s
+    if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and sigma_rad + size / 3.0 > EKF3_YAW_FLOOR_RAD:
+        rate = LARGE_OFFSET_MAX_RATE_RAD_S
+    allowed = rate * dt_s
+    if size <= allowed or size <= arrive_within_rad:
+        return -offset_rad, True
+    return -math.copysign(allowed, offset_rad), False

@@ -807,7 +807,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "return math.hypot(sigma_rad, offset_rad)", ("tests/test_published_heading.py",)),
     Mutation("slew-rate-capped-large-offset", "a slew is held to LARGE_OFFSET_MAX_RATE_RAD_S while its σ is above "
              "EKF3's floor", "estimator/slewed_yaw.py",
-             "if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and YawSlew.sigma_rad(sigma_rad, offset_rad) > EKF3_YAW_FLOOR_RAD:",
+             "if rate_rad_s > LARGE_OFFSET_MAX_RATE_RAD_S and sigma_rad + size / 3.0 > EKF3_YAW_FLOOR_RAD:",
              "if False:", ("tests/test_published_heading.py",)),
     # ------------------------------------------------------------------ session 34 (insfix)
     Mutation("skew-one-vector-signs", "skew of one 3-vector is the batch path's [v×] to the bit",
@@ -1111,6 +1111,28 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("history-search-nan", "a NaN time has no kept row at or before it, as the kernel's walk finds",
              "estimator/history_rows.py", "    if not t_s == t_s:", "    if False:",
              ("tests/test_history_rows.py",)),
+    # ------------------------------------------------------------------ session 40 (blk)
+    Mutation("blk-fix-due-sample-alone", "a run of samples stops before the sample a queued fix falls due at (stepped "
+             "alone, the fix fused after it)", "estimator/ins_step_block.py", "        if t >= stop_t_s:",
+             "        if t > stop_t_s:", ("tests/test_ins_step_block.py",)),
+    Mutation("blk-field-circle-sample-alone", "before the first fix a run stops before the field-circle check's "
+             "next sample", "estimator/ins.py", "            stop_t_s = min(stop_t_s, self._field_circle.due_t_s)",
+             "            stop_t_s = stop_t_s", ("tests/test_ins_step_block.py",)),
+    Mutation("blk-run-end", "the pipeline hands on every sample of a run once and steps none of them again",
+             "daemon/pipeline.py", "run_first, ahead = i, i + len(run_flags)",
+             "run_first, ahead = i, i + len(run_flags) - 1", ("tests/test_ins_step_block.py",)),
+    Mutation("blk-published-sample-attitude", "in a run the published heading's slew is fed each sample's roll and "
+             "pitch", "estimator/ins_step_block.py",
+             "published_offset_step(published, published_rate_rad_s, t, o.euler_rad[2], o.euler_rad[0], o.euler_rad[1],",
+             "published_offset_step(published, published_rate_rad_s, t, o.euler_rad[2], o.euler_rad[1], o.euler_rad[0],",
+             ("tests/test_ins_step_block.py",)),
+    Mutation("blk-published-following", "in a run the published heading follows from the first sample not "
+             "INITIALISING and then at every sample", "estimator/ins_step_block.py",
+             "        if published[FOLLOWING] > 0.0 or not f & F_INITIALISING:",
+             "        if published[FOLLOWING] > 1.0 or not f & F_INITIALISING:", ("tests/test_ins_step_block.py",)),
+    Mutation("blk-listener-unsaid", "a listener that did not say it lets the estimator step ahead keeps the block "
+             "stepped sample by sample", "daemon/sample_reader.py", "            if allowed is None or not allowed():",
+             "            if allowed is not None and not allowed():", ("tests/test_ins_step_block.py",)),
     # ------------------------------------------------------------------ session 39 (fixc)
     Mutation("lever-kernel-bracket-weight", "the compiled innovation interpolates the history with the newer row's "
              "weight", "estimator/ins_core.py", "return j, i, (t - tj) / (t_rows[i] - tj)",
@@ -1209,8 +1231,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "daemon/magcal.py", "sample if mounting is None else pipeline.last_sensor_sample", "sample",
              ("tests/test_sample_block.py",)),
     Mutation("loop-slew-slowest-rate", "an offset skips the slew's rate only within the slowest rate's step",
-             "estimator/slewed_yaw.py", "if size <= min(self.rate_rad_s, LARGE_OFFSET_MAX_RATE_RAD_S) * dt_s:",
-             "if size <= max(self.rate_rad_s, LARGE_OFFSET_MAX_RATE_RAD_S) * dt_s:", ("tests/test_published_heading.py",)),
+             "estimator/slewed_yaw.py", "if size <= min(rate_rad_s, LARGE_OFFSET_MAX_RATE_RAD_S) * dt_s:",
+             "if size <= max(rate_rad_s, LARGE_OFFSET_MAX_RATE_RAD_S) * dt_s:", ("tests/test_published_heading.py",)),
     Mutation("loop-frame-one-byte-kept", "a payload of zeros keeps one byte (MAVLink 2 truncation, as pymavlink)",
              "daemon/mavlink_frame.py", 'n = len(payload.rstrip(b"\\0")) or 1', 'n = len(payload.rstrip(b"\\0"))',
              ("tests/test_mavlink_frame.py",)),
