@@ -34,7 +34,10 @@ load, for the simulated spidev path and the simulated IIO path:
 
 --gnss on: `--gnss-sim`, the scenario's simulated receiver (UBX NAV-PVT at 5 Hz over a pty, read by the serial
 source as on hardware), so the default estimator is `ins` fed 5 fixes a second; off: no GNSS, `mekf`. Both run
-the same moving scenario (`--scenario`, default boat), so the difference is the GNSS path and ins. The daemon's
+the same moving scenario (`--scenario`, default boat), so the difference is the GNSS path and ins. With `--sensor iio`
+(`--gnss-sim` follows only the daemon's own simulated chip) the scenario's receiver runs on the simulated IIO chip's
+time in a process of its own (bench/iio_gnss.py) and the daemon reads its pty as `[gnss] source = "serial"`; its CPU
+and the simulated kernel's are printed beside the daemon's, not in it. On the sim paths the daemon's
 figure includes the simulated receiver's writer thread (the simulator and the UBX encoding run in the daemon
 process, as the simulated chip does), measured apart (below). With
 GNSS the window opens `--warmup` s after the first "aided" STATUSTEXT (ACTIVE alone without): the steady cost.
