@@ -34,7 +34,10 @@ load, for the simulated spidev path and the simulated IIO path:
 
 --gnss on: `--gnss-sim`, the scenario's simulated receiver (UBX NAV-PVT at 5 Hz over a pty, read by the serial
 source as on hardware), so the default estimator is `ins` fed 5 fixes a second; off: no GNSS, `mekf`. Both run
-the same moving scenario (`--scenario`, default boat), so the difference is the GNSS path and ins. The daemon's
+the same moving scenario (`--scenario`, default boat), so the difference is the GNSS path and ins. With `--sensor iio`
+(`--gnss-sim` follows only the daemon's own simulated chip) the scenario's receiver runs on the simulated IIO chip's
+time in a process of its own (bench/iio_gnss.py) and the daemon reads its pty as `[gnss] source = "serial"`; its CPU
+and the simulated kernel's are printed beside the daemon's, not in it. On the sim paths the daemon's
 figure includes the simulated receiver's writer thread (the simulator and the UBX encoding run in the daemon
 process, as the simulated chip does), measured apart (below). With
 GNSS the window opens `--warmup` s after the first "aided" STATUSTEXT (ACTIVE alone without): the steady cost.
@@ -126,6 +129,20 @@ def tree_cpu_seconds(pid: int) -> tuple[float, float, float]:
             except (OSError, ValueError):
                 continue
     return daemon, reader, producer
+
+
+def outside_cpu_seconds(device, receiver) -> tuple[float, float]:
+    """utime + stime of the simulated hardware the bench runs beside the daemon with --sensor iio: (the simulated
+    kernel's process — drivers.simulated_iio, the kernel's work on hardware —, the GNSS receiver's process —
+    bench/iio_gnss.py, a receiver's own work —); 0 for what is not running."""
+    def of(pid) -> float:
+        try:
+            return cpu_seconds(pid) if pid else 0.0
+        except (OSError, ValueError):
+            return 0.0
+
+    return (of(device.kernel_pid) if device is not None else 0.0,
+            of(receiver.pid) if receiver is not None else 0.0)
 
 
 def thread_counts(pid: int) -> dict[tuple[str, int], tuple[float, float, int, int]]:
@@ -232,24 +249,32 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
         config = Path(tmp) / "ahrsd.toml"
         reader = {"sim": "thread", "sim-process": "process"}.get(sensor, "auto")   # iio: auto, a thread
         rate = f"rate_hz = {rate_hz}\n" if rate_hz is not None else ""          # sim/spi: SMPL_PRD, iio: the driver's
-        config.write_text(f'[sensor]\nreader = "{reader}"\n{rate}\n'
-                          f'[[endpoint]]\nurl = "udpout:127.0.0.1:{port}"\nprofile = "{profile}"\n')
         stats_path = Path(tmp) / "stats.json"
-        device = None
+        device = receiver = None
+        gnss_table = ""
         if sensor == "iio":
             from ahrsd.drivers.simulated_iio import SimulatedIioDevice
 
             device = SimulatedIioDevice(Path(tmp) / "iio", scenario=scenario)
             source_args = ["--iio", str(device.sysfs)]
+            if gnss:            # the same vehicle's receiver on the chip's time, read as a UART (bench/iio_gnss.py)
+                from bench.iio_gnss import IioGnssReceiver
+
+                device.wait_ready()
+                receiver = IioGnssReceiver(device, scenario)
+                gnss_table = (f'[gnss]\nsource = "serial"\ndevice = "{receiver.device}"\nbaud = {receiver.baud}\n'
+                              f'protocol = "ubx"\nlatency_s = {receiver.latency_s}\n\n')
         else:
             source_args = ["--sim", scenario]
+        config.write_text(f'[sensor]\nreader = "{reader}"\n{rate}\n{gnss_table}'
+                          f'[[endpoint]]\nurl = "udpout:127.0.0.1:{port}"\nprofile = "{profile}"\n')
         # the scenario's own iron (the boat's is not the static chip's): without a calibration (and GNSS) no
         # heading, no VPE, is sent, and with a wrong one the GNSS path would be measured rejecting it
         save_mag_calibration(tmp, sim_chip_mag_model(scenario))
         split_path = Path(tmp) / "split.jsonl"
         launcher = [str(REPO / "bench" / "loop_split.py"), str(split_path), "--"] if split else ["-m", "ahrsd.cli"]
         proc = subprocess.Popen(
-            [sys.executable, *launcher, "run", *source_args, *(("--gnss-sim",) if gnss else ()),
+            [sys.executable, *launcher, "run", *source_args, *(("--gnss-sim",) if gnss and device is None else ()),
              "--config", str(config),
              "--state-dir", tmp, "--status-line", "off", "--stats-file", str(stats_path),
              *(("--log-dir", str(Path(tmp) / "logs")) if log else ("--no-log",))],
@@ -298,6 +323,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                                 [sys.executable, str(REPO / "bench" / "wake_floor.py"), "--seconds",
                                  str(deadline - now), "--json"], stdout=subprocess.PIPE, text=True)
                         (cpu0, reader0, chip0), wall0 = tree_cpu_seconds(proc.pid), time.monotonic()
+                        outside0 = outside_cpu_seconds(device, receiver)
                         main0 = cpu_seconds(proc.pid, proc.pid)
                         threads0 = thread_counts(proc.pid) if threads else {}
                         if split:
@@ -312,6 +338,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                     elif mtype == "HIGHRES_IMU":
                         lat[mtype].append(now - m.time_usec * 1e-6)
             (cpu1, reader1, chip1), wall1 = tree_cpu_seconds(proc.pid), time.monotonic()
+            outside1 = outside_cpu_seconds(device, receiver)
             main1 = cpu_seconds(proc.pid, proc.pid)
             threads1 = thread_counts(proc.pid) if threads else {}
             if split:
@@ -330,6 +357,9 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
             if device is not None:
                 device.close()                 # the "kernel" stops first: the daemon drains what it wrote
                 time.sleep(1.0)
+            rx_counts = receiver.counters() if receiver is not None else {}
+            if receiver is not None:
+                receiver.close()
             proc.send_signal(signal.SIGTERM)
             proc.wait(10)
             sock.close()
@@ -340,6 +370,8 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
         raise SystemExit("the daemon never became ACTIVE")
     return {"latency_s": lat, "cpu_share": (cpu1 - cpu0) / (wall1 - wall0), "window_s": wall1 - wall0,
             "chip_share": (chip1 - chip0) / (wall1 - wall0), "load_avg": os.getloadavg(),
+            "iio_kernel_share": (outside1[0] - outside0[0]) / (wall1 - wall0),
+            "iio_receiver_share": (outside1[1] - outside0[1]) / (wall1 - wall0), "iio_receiver": rx_counts,
             "reader_share": (reader1 - reader0) / (wall1 - wall0), "floor": floor_out,
             "main_thread_share": (main1 - main0) / (wall1 - wall0),
             "counts": counts, "bytes_per_s": nbytes / (wall1 - wall0),
@@ -443,7 +475,7 @@ def main() -> None:
     ap.add_argument("--sensor", default="sim-process",
                     help="comma-separated: sim-process (simulated spidev chip read by a reader process: the "
                     "default reader, real or simulated), sim (the same chip read by a thread in the daemon), iio "
-                    "(simulated IIO device; no GNSS), or all")
+                    "(simulated IIO device; with GNSS its vehicle's receiver on a pty, bench/iio_gnss.py), or all")
     ap.add_argument("--load", choices=("off", "on", "both"), default="off",
                     help="busy processes on every CPU and a MAVLink flood while measuring (both: one run each)")
     ap.add_argument("--flood-hz", type=float, default=1000.0, help="MAVLink messages per second in the flood")
@@ -470,15 +502,14 @@ def main() -> None:
     loads = {"off": (False,), "on": (True,), "both": (False, True)}[args.load]
     full = {(p, lg, gn, se, ld): part_a(args.seconds, args.warmup, p, lg, gn, scenario, se, ld, args.flood_hz,
                                         args.floor, args.rate_hz, args.threads, args.split)
-            for se in sensors for ld in loads for gn in gnss_runs for p in profiles for lg in logs
-            if not (gn and se == "iio")}
+            for se in sensors for ld in loads for gn in gnss_runs for p in profiles for lg in logs}
     runs = {k[:3]: r for k, r in full.items() if k[3] == sensors[0] and k[4] == loads[0]}
     for r in full.values():
         r["sim_chip_share"], r["sim_rx_share"] = simulated_in_daemon(r["stats"])
         r["sim_share"] = r["sim_chip_share"] + r["sim_rx_share"]
     for (p, lg, gn, se, ld), r in full.items():
         print(f"\nA. ahrsd run {'--iio (simulated IIO device)' if se == 'iio' else '--sim'} {scenario} ({se})"
-              f"{' --gnss-sim' if gn else ''}, profile \"{p}\", logging {'on' if lg else 'off'}, "
+              f"{(' --gnss-serial (its receiver: bench/iio_gnss.py)' if se == 'iio' else ' --gnss-sim') if gn else ''}, profile \"{p}\", logging {'on' if lg else 'off'}, "
               f"load {'on' if ld else 'off'}, {r['window_s']:.1f} s window"
               f"{f', [sensor] rate_hz = {args.rate_hz:g}' if args.rate_hz is not None else ''}")
         print(f"   {gnss_summary(r['stats'])}")
@@ -494,6 +525,14 @@ def main() -> None:
               f"the run): {100 * r['sim_share']:.1f} % (the chip's register model and truth bookkeeping "
               f"{100 * r['sim_chip_share']:.1f} %, the receiver's writer {100 * r['sim_rx_share']:.1f} %); "
               f"the daemon's own code {100 * (r['cpu_share'] - r['sim_share']):.1f} %")
+        if se == "iio":
+            rx = r["iio_receiver"]
+            print(f"   beside the daemon, not in its figure (simulated hardware in processes of their own): the "
+                  f"simulated kernel (drivers.simulated_iio: the IIO driver's handler and the chip) "
+                  f"{100 * r['iio_kernel_share']:.1f} %"
+                  + (f"; the GNSS receiver (bench/iio_gnss.py) {100 * r['iio_receiver_share']:.1f} %, fixes written "
+                     f"{rx.get('fixes_written', 0)}, skipped late {rx.get('fixes_skipped_late', 0)} (whole run)"
+                     if gn else ""))
         if r["floor"]:
             fl = r["floor"]
             print(f"   floor beside it (bench/wake_floor.py, real-time {'yes' if fl['realtime'] else 'NO'}): "

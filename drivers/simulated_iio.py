@@ -100,7 +100,8 @@ ATTRIBUTE_POLL_S = 0.01          # the attribute thread looks for a reader or a 
 _STATS = ("records", "stale_records", "overflow_dropped", "sessions", "first_index", "last_index")
 _STALL_US, _UNPLUGGED, _UNPLUG_ACK, _READY = len(_STATS), len(_STATS) + 1, len(_STATS) + 2, len(_STATS) + 3
 _SMPL_PRD, _ATTRIBUTE_STOP, _PROBED = len(_STATS) + 4, len(_STATS) + 5, len(_STATS) + 6
-_SLOTS = len(_STATS) + 7
+_ORIGIN_NS = len(_STATS) + 7     # CLOCK_MONOTONIC ns of the chip's time 0 (sample 0's data-ready), once up
+_SLOTS = len(_STATS) + 8
 
 
 def layout(enabled: list[tuple[str, int, str]]) -> tuple[list[tuple[str, int, int]], int]:
@@ -165,6 +166,20 @@ class SimulatedIioDevice:
     def last_index_written(self) -> int | None:
         v = int(self._shared[_STATS.index("last_index")])
         return None if v < 0 else v
+
+    @property
+    def kernel_pid(self) -> int | None:
+        """The simulated kernel's process: its CPU is the kernel's work on hardware, not the reader's."""
+        return self._proc.pid
+
+    def chip_time_s(self) -> float:
+        """The chip's own time now (its `now()`, in the kernel process): time.monotonic() − its time 0, which
+        the kernel publishes once the chip is up (wait_ready). The scenario's time of the records' samples, as
+        long as no new rate restarts its sample grid: the clock a simulated receiver of the same vehicle runs on
+        (drivers.gnss.scenario `chip_clock`), as the sim path's receiver runs on the chip's `now`."""
+        if not self._shared[_READY]:
+            raise RuntimeError("the simulated chip is not up yet (wait_ready)")
+        return time.monotonic() - self._shared[_ORIGIN_NS] * 1e-9
 
     def wait_ready(self, timeout_s: float = 120.0) -> None:
         """Until the kernel process has its chip up (the spawn imports the simulator)."""
@@ -276,6 +291,7 @@ def _kernel(sysfs: str, node: str, scenario, seed: int, errors: str, shared, sto
                                  daemon=True)
     attribute.start()                                      # a sysfs store runs in the writer's context, not RT
     request_realtime_priority()                            # as the kernel's threaded IRQ handlers run
+    shared[_ORIGIN_NS] = round(chip.ready_clock_time(0) * 1e9)    # the chip's time 0 on CLOCK_MONOTONIC
     shared[_READY] = 1
     unplugged = False
     try:

@@ -1133,6 +1133,15 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("blk-listener-unsaid", "a listener that did not say it lets the estimator step ahead keeps the block "
              "stepped sample by sample", "daemon/sample_reader.py", "            if allowed is None or not allowed():",
              "            if allowed is not None and not allowed():", ("tests/test_ins_step_block.py",)),
+    # ------------------------------------------------------------------ session 40 (iiocpu)
+    Mutation("iiocpu-receiver-chip-origin", "bench/latency.py's GNSS receiver beside a simulated IIO device runs on "
+             "the chip's time (its fixes lie on the records' vehicle)", "bench/iio_gnss.py",
+             "origin_s = time.monotonic() - device.chip_time_s()", "origin_s = 0.0",
+             ("tests/test_bench_iio_gnss.py",)),
+    Mutation("iiocpu-device-chip-time", "the simulated IIO device's chip time is the host's monotonic time less the "
+             "chip's time 0", "drivers/simulated_iio.py",
+             "return time.monotonic() - self._shared[_ORIGIN_NS] * 1e-9", "return time.monotonic()",
+             ("tests/test_bench_iio_gnss.py",)),
     # ------------------------------------------------------------------ session 39 (fixc)
     Mutation("lever-kernel-bracket-weight", "the compiled innovation interpolates the history with the newer row's "
              "weight", "estimator/ins_core.py", "return j, i, (t - tj) / (t_rows[i] - tj)",
