@@ -38,7 +38,7 @@ from .heading_publication import HeadingPublication, HeadingReport
 from .ins_gnss_fusion import InsGnssFusion
 from .iron_in_use import IronInUse
 from .kernel_entry import argument_types, entry_point
-from .mag_error_states import MagErrorStates, harmonics_source
+from .mag_error_states import MagErrorStates, harmonics_source, learned_floor_var_rad2
 from .mag_rotation import MagRotationBias, window_tilt_sigma_rad
 from .magnetometer_use import IronState, magnetometer_use
 from .monitor_follow_up import heading_observable, monitor_follow_up
@@ -320,7 +320,7 @@ class HeadingSupervision:
                 if self._learned_iron.learned:
                     # learning (or learned): the learned hard iron's uncertainty replaces the calibration's
                     # hard-iron error; what a hard iron cannot explain stays
-                    floor = min(p.calibration_sigma_rad ** 2, (p.iron_unmodelled_ut / h) ** 2)
+                    floor = learned_floor_var_rad2(p, h * h)
                     mag_var = floor + noise + self._iron.heading_variance(c_bn, m_ned)
                     averaged = floor - slow_floor_var_rad2(p, h * h, self.monitor.reentry_s)
         return mag_yaw, mag_var, noise, averaged
