@@ -10,6 +10,7 @@ and ADI EngineerZone thread 81805 (see `registers.py`).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import struct
@@ -101,6 +102,10 @@ class Adis16405:
         self.sens_avg = R.SENS_AVG_DEFAULT
         self._apply_config(self.smpl_prd, self.sens_avg)
         self._reset_stream_state()
+        # read_burst(): one burst transfer, the frame's bytes undecoded (drivers.chip_source's common read decodes
+        # the clean fresh frame itself and hands any other to `decode_burst`); a partial, not a method: a Python
+        # frame less a read after each wake's cold caches (docs/daemon.md "Performance")
+        self.read_burst: Callable[[], bytes] = functools.partial(self._xfer, _BURST_TX, R.SPI_BURST_HZ, 0)
 
     # ---------------------------------------------------------------------------------- configuration
     @property
@@ -350,11 +355,6 @@ class Adis16405:
         Raises FrameError (counted) for frames that cannot be trusted, BusError when the bus fails.
         """
         return self.decode_burst(self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0), stamp)
-
-    def read_burst(self) -> bytes:
-        """One burst transfer: the frame's bytes, undecoded (drivers.chip_source's common read decodes the clean
-        fresh frame itself and hands any other to `decode_burst`)."""
-        return self._xfer(_BURST_TX, R.SPI_BURST_HZ, 0)
 
     def decode_burst(self, rx: bytes, stamp: Callable[[int], tuple[float, int, int]] | None = None
                      ) -> ImuSample | SampleRecord:

@@ -74,60 +74,58 @@ class ChipSource(LiveSource):
         seconds, counter = sample index, GAP_BEFORE after lost samples), or None when the chip has no new
         sample yet (ND clear). Raises FrameError (one corrupt frame) or BusError.
 
-        The common read of the reader process (records, a SampleTimer with its first sample taken) is decoded
-        here in one function (`_common_read`): a Python frame less is CPU less after every wake's cold caches
-        (docs/daemon.md "Performance"). Any other read is the driver's and the timer's general path."""
+        The common read of the reader process (records, a SampleTimer with its first sample taken: a clean fresh
+        frame whose index the host clock settles) is decoded here, in this function: a Python frame less is CPU
+        less after every wake's cold caches (docs/daemon.md "Performance"). Any other read is the driver's and
+        the timer's general path.
+
+        The common read: ND in every word, no EA, supply and every axis within bounds, no burst-bug suspicion,
+        the driver not holding a newer sample's ND, a transfer shorter than CHECKABLE_READ_PERIODS and a unique
+        index. The checks, the timer's step and the record, with the driver's bounds and the timer's arithmetic
+        (fresh_after_first), the stuck-axis check and the record (Adis16405._check_stuck, _sample) shared.
+        Decides before it changes anything; any other frame goes, as read, to the driver's general path
+        (Adis16405.decode_burst with `_stamp`), which gives the same sample, counters and timer state
+        (tests/test_common_read.py, tools/reader_digest.py)."""
         clock = self.clock
         if clock is not None:
             now = max(now, clock())
         self._read_start = now
-        driver = self.driver
+        driver, timer = self.driver, self.timer
+        out = None                    # the common read's (t_s, index, lost): None, the general path's read
         try:
-            if driver.samples_as_records and self._common_timer and self.timer.hi is not None:
-                s = self._common_read(driver, now)
+            if driver.samples_as_records and self._common_timer and timer.hi is not None:
+                rx = driver.read_burst()
+                w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, _ = _UNPACK_BURST(rx, 2)
+                supply = w0 & 0x3FFF
+                # ND in every checked word and EA in none (Adis16405.decode_burst's agreement check, its common
+                # answer), the driver not holding a newer sample's ND
+                if not ((w0 & w1 & w2 & w3 & w4 & w5 & w6 & w7 & w8 & w9 & _FLAG_BITS) != _ND
+                        or (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & _EA
+                        or not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB or driver.newer_sample_taken):
+                    gx = ((w1 & 0x3FFF) ^ 0x2000) - 0x2000
+                    raw9 = [gx, ((w2 & 0x3FFF) ^ 0x2000) - 0x2000, ((w3 & 0x3FFF) ^ 0x2000) - 0x2000,
+                            ((w4 & 0x3FFF) ^ 0x2000) - 0x2000, ((w5 & 0x3FFF) ^ 0x2000) - 0x2000,
+                            ((w6 & 0x3FFF) ^ 0x2000) - 0x2000, ((w7 & 0x3FFF) ^ 0x2000) - 0x2000,
+                            ((w8 & 0x3FFF) ^ 0x2000) - 0x2000, ((w9 & 0x3FFF) ^ 0x2000) - 0x2000]
+                    prev_gx = driver._prev_gx
+                    # the driver's burst-bug suspicion (decode_burst) and full scale (beyond which lies the
+                    # plausibility bound)
+                    if not ((not (w1 & 0x2000) and (gx > driver._gyro_range_lsb or (
+                            gx - prev_gx > driver._jump_lsb if prev_gx is not None else gx > driver._jump_lsb)))
+                            or any(map(_ge, map(abs, raw9), driver._full_scale9))):
+                        end = now if clock is None else clock()
+                        if end - now < CHECKABLE_READ_PERIODS * timer.period_s:
+                            out = timer.fresh_after_first(now, end, True)     # None: the index is uncertain
+                if out is None:
+                    s = driver.decode_burst(rx, self._stamp)
             else:
                 s = driver.read_sample(self._stamp)
         except FrameError:
             # the rejected frame may have carried (and cleared) a new sample
-            self.timer.may_have_consumed(now if clock is None else clock())
+            timer.may_have_consumed(now if clock is None else clock())
             raise
-        return None if _int_and(s.flags, _STALE) else s
-
-    def _common_read(self, driver: Adis16405, now: float):
-        """The read of a clean fresh frame whose index the host clock settles (ND in every word, no EA, supply
-        and every axis within bounds, no burst-bug suspicion, the driver not holding a newer sample's ND, a
-        transfer shorter than CHECKABLE_READ_PERIODS and a unique index): the checks, the timer's step and the
-        record in one function, with the driver's bounds and the timer's arithmetic (fresh_after_first), the
-        stuck-axis check and the record (Adis16405._check_stuck, _sample) shared. Decides before it changes
-        anything; any other frame goes, as read, to the driver's general path (Adis16405.decode_burst with
-        `_stamp`), which gives the same sample, counters and timer state (tests/test_common_read.py,
-        tools/reader_digest.py)."""
-        rx = driver.read_burst()
-        if driver.newer_sample_taken:
-            return driver.decode_burst(rx, self._stamp)
-        w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, _ = _UNPACK_BURST(rx, 2)
-        supply = w0 & 0x3FFF
-        # ND in every checked word and EA in none (Adis16405.decode_burst's agreement check, its common answer)
-        if ((w0 & w1 & w2 & w3 & w4 & w5 & w6 & w7 & w8 & w9 & _FLAG_BITS) != _ND
-                or (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & _EA
-                or not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB):
-            return driver.decode_burst(rx, self._stamp)
-        gx = ((w1 & 0x3FFF) ^ 0x2000) - 0x2000
-        raw9 = [gx, ((w2 & 0x3FFF) ^ 0x2000) - 0x2000, ((w3 & 0x3FFF) ^ 0x2000) - 0x2000,
-                ((w4 & 0x3FFF) ^ 0x2000) - 0x2000, ((w5 & 0x3FFF) ^ 0x2000) - 0x2000,
-                ((w6 & 0x3FFF) ^ 0x2000) - 0x2000, ((w7 & 0x3FFF) ^ 0x2000) - 0x2000,
-                ((w8 & 0x3FFF) ^ 0x2000) - 0x2000, ((w9 & 0x3FFF) ^ 0x2000) - 0x2000]
-        prev_gx = driver._prev_gx
-        # the driver's burst-bug suspicion (decode_burst) and full scale (beyond which lies the plausibility bound)
-        if ((not (w1 & 0x2000) and (gx > driver._gyro_range_lsb or (gx - prev_gx > driver._jump_lsb
-                                                                    if prev_gx is not None else gx > driver._jump_lsb)))
-                or any(map(_ge, map(abs, raw9), driver._full_scale9))):
-            return driver.decode_burst(rx, self._stamp)
-        clock, timer = self.clock, self.timer
-        end = now if clock is None else clock()
-        out = None if end - now >= CHECKABLE_READ_PERIODS * timer.period_s else timer.fresh_after_first(now, end, True)
         if out is None:
-            return driver.decode_burst(rx, self._stamp)
+            return None if _int_and(s.flags, _STALE) else s
         # from here on the read is taken: the driver's state as decode_burst leaves it after a clean fresh frame
         driver.counters["new_samples"] += 1
         driver._burst_supply_lsb = supply

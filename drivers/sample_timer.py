@@ -46,21 +46,21 @@ class SampleTimer:
         self._t_lo = 0.0
         self._t_hi = 0.0
 
-    def _leaked(self, now: float) -> tuple[float, float]:
-        """The bounds (lo, hi) leaked up to `now`."""
-        hi = self.hi + self.HI_LEAK_S_PER_S * (now - self._t_hi)
-        return max(self.lo - self.LO_LEAK_S_PER_S * (now - self._t_lo), hi - self.period_s), hi   # φ mod P
+    def _bracket(self, read_time: float, end: float) -> tuple[float, float, int, int]:
+        """The bounds (lo, hi) leaked up to `read_time`, and the largest and the smallest index a fresh read between
+        `read_time` and `end` allows with the phase in (lo, hi]: the latest k with ready_k ≤ end for some φ in the
+        bracket (the largest k with end − k·P > lo), and the latest with ready_k ≤ read_time even at φ = hi;
+        neither below the one after the last. One method for both (the reader's every fresh read asks both: a
+        Python frame less after each wake's cold caches, docs/daemon.md "Performance")."""
+        P = self.period_s
+        hi = self.hi + self.HI_LEAK_S_PER_S * (read_time - self._t_hi)
+        lo = max(self.lo - self.LO_LEAK_S_PER_S * (read_time - self._t_lo), hi - P)   # φ mod P
+        first = self.k + 1
+        return lo, hi, max(first, math.ceil((end - lo) / P) - 1), max(first, math.floor((read_time - hi) / P))
 
     def _leak(self, now: float) -> None:
-        self.lo, self.hi = self._leaked(now)
+        self.lo, self.hi, _k, _k_min = self._bracket(now, now)
         self._t_hi = self._t_lo = now
-
-    def _index_range(self, read_time: float, end: float, lo: float, hi: float) -> tuple[int, int]:
-        """The largest and the smallest index a fresh read between `read_time` and `end` allows with the phase in
-        (lo, hi]: the latest k with ready_k ≤ end for some φ in the bracket (the largest k with end − k·P > lo),
-        and the latest with ready_k ≤ read_time even at φ = hi; neither below the one after the last."""
-        P, first = self.period_s, self.k + 1
-        return max(first, math.ceil((end - lo) / P) - 1), max(first, math.floor((read_time - hi) / P))
 
     ambiguous_reads = 0     # fresh reads whose index was not unique (the largest allowed was taken)
     ambiguous_samples = 0   # lost samples counted at those reads that may be phantoms (upper bound)
@@ -105,8 +105,7 @@ class SampleTimer:
         counted), the bracket narrowed by its ready time. certain_only: None instead, and nothing changed, when
         the index is not unique. One method for both (the reader's common read calls it directly:
         drivers.chip_source), the bracket kept in locals until it is stored once."""
-        lo, hi = self._leaked(read_time)
-        k, k_min = self._index_range(read_time, end, lo, hi)
+        lo, hi, k, k_min = self._bracket(read_time, end)
         if k > k_min:
             if certain_only:
                 return None
@@ -131,7 +130,7 @@ class SampleTimer:
         newer sample is ready)."""
         if self.hi is None:
             return False
-        k, k_min = self._index_range(read_time, read_end, *self._leaked(read_time))
+        _lo, _hi, k, k_min = self._bracket(read_time, read_end)
         return k > k_min
 
     def stale(self, read_time: float) -> None:

@@ -1286,8 +1286,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "any plausible reading) to the driver's checks", "drivers/chip_source.py",
              "or any(map(_ge, map(abs, raw9), driver._full_scale9))):", "or False):", ("tests/test_common_read.py",)),
     Mutation("common-read-burst-bug", "the reader's common read leaves a frame suspected of the X-gyro burst bug to "
-             "the driver's register check", "drivers/chip_source.py", "if ((not (w1 & 0x2000) and (gx > ",
-             "if ((False and (gx > ", ("tests/test_common_read.py",)),
+             "the driver's register check", "drivers/chip_source.py", "if not ((not (w1 & 0x2000) and (gx > ",
+             "if not ((False and (gx > ", ("tests/test_common_read.py",)),
     Mutation("common-read-alarm", "the reader's common read leaves a frame with EA set to the driver (DIAG_STAT read)",
              "drivers/chip_source.py", "or (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & _EA",
              "or (w0 | w1 | w2 | w3 | w4 | w5 | w6 | w7 | w8 | w9) & 0", ("tests/test_common_read.py",)),
