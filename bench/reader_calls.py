@@ -8,6 +8,8 @@ readable and asks for the next one `--hz` times a second, as the daemon's output
     .venv/bin/python bench/reader_calls.py --compiled-decode   # the burst decode in numba against Python, hot loop
     .venv/bin/python bench/reader_calls.py --split             # + the reader's CPU from a wake to the next wait
     .venv/bin/python bench/reader_calls.py --hot 20000         # the same per-read step with no sleep (caches kept)
+    .venv/bin/python bench/reader_calls.py --split --bound     # the common read without its decode: a bound
+    .venv/bin/python bench/reader_calls.py --seconds 5 --import-numba   # the reader's start with numba imported
 
 Prints, over the window (after a 4 s warm-up): the reads a second, the reader thread's CPU (user, system, and the
 scheduler's run time from /proc/PID/task/TID/schedstat) as a share of a core and per read, and the simulated chip's
@@ -47,6 +49,10 @@ def child(*args, **kwargs):
 
     if os.environ.get("READER_CALLS_SPLIT"):
         time_loop_work(threaded_source._Pacing)
+    if os.environ.get("READER_CALLS_BOUND"):
+        bound_common_read()
+    if os.environ.get("READER_CALLS_IMPORT_NUMBA"):
+        import numba  # noqa: F401 - what a numba kernel in the reader would cost its start
     out = os.environ.get("READER_CALLS_PROFILE")
     if out:
         import cProfile
@@ -85,6 +91,31 @@ def time_loop_work(pacing_class, cpu_ns=time.thread_time_ns) -> None:
             self._split_left_ns = cpu_ns()
 
     pacing_class.wait_for_sample = timed_wait
+
+
+def bound_common_read() -> None:
+    """The reader's common read (drivers.chip_source.ChipSource.read_one) cut to the burst transfer, the timer's
+    step and a record made once: no unpacking, checks, sign extension, stuck-axis check or scaling. Not a reader
+    (the frame is not looked at): the bound on what any faster decode of the frame (compiled, batched) could take
+    off a read after a real sleep, the loop, the wake, the timer and the hand-over left as they are."""
+    from ahrsd.core.sample import SampleFlags
+    from ahrsd.drivers import chip_source
+    from ahrsd.drivers.sample_record import SampleRecord
+
+    read_one = chip_source.ChipSource.read_one
+    values = (0.0,) * 11          # the nine axes, temp_c, supply_v
+    new_data, gap = int(SampleFlags.NEW_DATA), int(SampleFlags.GAP_BEFORE)
+
+    def bounded(self, now: float):
+        timer, driver = self.timer, self.driver
+        if not (driver.samples_as_records and self._common_timer and timer.hi is not None):
+            return read_one(self, now)
+        now = max(now, self.clock())
+        driver.read_burst()
+        t_s, k, lost = timer.fresh_after_first(now, self.clock(), False)
+        return SampleRecord((t_s, *values, new_data | (gap if lost else 0), 0, k))
+
+    chip_source.ChipSource.read_one = bounded
 
 
 def _threads(pid: int) -> dict[str, tuple[float, float, float]]:
@@ -325,6 +356,11 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true", help="the reader thread under cProfile: calls a read by part")
     ap.add_argument("--split", action="store_true",
                     help="also count the reader thread's CPU from each wake's return to the next wait")
+    ap.add_argument("--bound", action="store_true",
+                    help="the common read cut to the transfer, the timer's step and a record made once: what a "
+                         "faster frame decode could save at most (not a reader: the frames are not looked at)")
+    ap.add_argument("--import-numba", action="store_true",
+                    help="the reader process imports numba before it opens the chip (its start's cost)")
     ap.add_argument("--compiled-decode", action="store_true",
                     help="only time, in a hot loop, the driver's burst checks and decode in Python against numba")
     ap.add_argument("--hot", type=int, default=0, metavar="N",
@@ -358,6 +394,10 @@ def main() -> None:
         os.environ["READER_CALLS_PROFILE"] = profile_path
     if args.split:
         os.environ["READER_CALLS_SPLIT"] = "1"
+    if args.bound:
+        os.environ["READER_CALLS_BOUND"] = "1"
+    if args.import_numba:
+        os.environ["READER_CALLS_IMPORT_NUMBA"] = "1"
     process_source._child = child
     load0 = os.getloadavg()[0]
     spawned = time.monotonic()

@@ -1307,6 +1307,19 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("pacing-own-sleep-spaced", "the reader's own wait spaces the re-reads of a stalled chip",
              "drivers/threaded_source.py", "        if self.last_stale:", "        if False:",
              ("tests/test_pacing_own_sleep.py",)),
+    # ------------------------------------------------------------------ session 41 (rdjit)
+    Mutation("rdjit-bracket-smallest-index", "the timer's smallest index a read allows is the latest sample ready by "
+             "the read's start even at the bracket's latest phase (an index the clock leaves open is asked of the chip)",
+             "drivers/sample_timer.py", "max(first, math.floor((read_time - hi) / P))",
+             "max(first, math.ceil((end - hi) / P))", ("tests/test_reliability_accounting.py",)),
+    Mutation("rdjit-bracket-phase-mod-period", "the timer's leaked lower bound stays within a period of the upper "
+             "(the phase is known modulo a period)", "drivers/sample_timer.py",
+             "(read_time - self._t_lo), hi - P)   # φ mod P", "(read_time - self._t_lo), hi - 2 * P)",
+             ("tests/test_reliability_timing.py",)),
+    Mutation("rdjit-common-read-newer-taken", "the reader's common read leaves a burst after a register read took a "
+             "newer sample's ND to the driver (new data without ND)", "drivers/chip_source.py",
+             "or not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB or driver.newer_sample_taken):",
+             "or not _SUPPLY_MIN_LSB <= supply <= _SUPPLY_MAX_LSB):", ("tests/test_common_read.py",)),
     # ------------------------------------------------------------------ session 40 (tidy)
     Mutation("lever-kernel-mean-bits", "the compiled mean body rate is the Python reference's to the bit: the rows' "
              "sums divided by their count", "estimator/lever_arm_kernel.py", "wx, wy, wz = sx / n, sy / n, sz / n",
