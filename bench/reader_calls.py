@@ -10,6 +10,7 @@ readable and asks for the next one `--hz` times a second, as the daemon's output
     .venv/bin/python bench/reader_calls.py --hot 20000         # the same per-read step with no sleep (caches kept)
     .venv/bin/python bench/reader_calls.py --split --bound     # the common read without its decode: a bound
     .venv/bin/python bench/reader_calls.py --seconds 5 --import-numba   # the reader's start with numba imported
+    .venv/bin/python bench/reader_calls.py --split --compiled-read     # the frame's decode in numba, after real sleeps
 
 Prints, over the window (after a 4 s warm-up): the reads a second, the reader thread's CPU (user, system, and the
 scheduler's run time from /proc/PID/task/TID/schedstat) as a share of a core and per read, and the simulated chip's
@@ -22,6 +23,7 @@ simulated chip); the profiler's own cost inflates that time, so compare parts an
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import os
 import select
@@ -51,8 +53,10 @@ def child(*args, **kwargs):
         time_loop_work(threaded_source._Pacing)
     if os.environ.get("READER_CALLS_BOUND"):
         bound_common_read()
+    if os.environ.get("READER_CALLS_COMPILED"):
+        compiled_common_read()
     if os.environ.get("READER_CALLS_IMPORT_NUMBA"):
-        import numba  # noqa: F401 - what a numba kernel in the reader would cost its start
+        importlib.import_module("numba")      # what a numba kernel in the reader would cost its start
     out = os.environ.get("READER_CALLS_PROFILE")
     if out:
         import cProfile
@@ -116,6 +120,88 @@ def bound_common_read() -> None:
         return SampleRecord((t_s, *values, new_data | (gap if lost else 0), 0, k))
 
     chip_source.ChipSource.read_one = bounded
+
+
+def compiled_common_read() -> None:
+    """The reader's common read with the frame's Python (unpacking, the ND/EA and supply checks, the nine sign
+    extensions, the burst-bug and full-scale bounds, the stuck-axis runs, the nine products, temperature and supply)
+    in one numba call, the transfer, the timer's step and the record's tuple left in Python: what a compiled decode
+    saves after a real sleep, against `--bound` (none of that work) and the reader as it is. Not a reader: the
+    stuck-axis runs are the kernel's own (never flagged), a frame the kernel refuses goes to the general path."""
+    import numba
+    import numpy as np
+
+    from ahrsd.core.sample import SampleFlags
+    from ahrsd.drivers import chip_source
+    from ahrsd.drivers import registers as R
+    from ahrsd.drivers.sample_record import SampleRecord
+
+    @numba.njit(cache=False)
+    def decode(rx, full9, scale9, prev9, runs9, gyro_range, jump, prev_gx, supply_min, supply_max):
+        w = np.empty(12, np.int64)
+        for i in range(12):
+            w[i] = (np.int64(rx[2 + 2 * i]) << 8) | np.int64(rx[3 + 2 * i])
+        both, either = 0xC000, 0
+        for i in range(10):
+            both &= w[i]
+            either |= w[i]
+        supply = w[0] & 0x3FFF
+        nothing = (1, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        if both != 0x8000 or either & 0x4000 or supply < supply_min or supply > supply_max:
+            return nothing
+        gx = ((w[1] & 0x3FFF) ^ 0x2000) - 0x2000
+        if not (w[1] & 0x2000) and (gx > gyro_range or gx - prev_gx > jump):
+            return nothing
+        v = np.empty(9)
+        run_max = 0
+        for i in range(9):
+            r = ((w[i + 1] & 0x3FFF) ^ 0x2000) - 0x2000
+            if abs(r) >= full9[i]:
+                return nothing
+            if r == prev9[i]:
+                runs9[i] += 1
+            else:
+                runs9[i] = 0
+                prev9[i] = r
+            run_max = max(run_max, runs9[i])
+            v[i] = r * scale9[i]
+        temp_c = R_TEMP_AT_ZERO + R_TEMP_PER_LSB * (((w[10] & 0x0FFF) ^ 0x0800) - 0x0800)
+        return (0, gx, supply, run_max, v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], temp_c,
+                supply * R_SUPPLY_V_PER_LSB)
+
+    R_TEMP_AT_ZERO, R_TEMP_PER_LSB, R_SUPPLY_V_PER_LSB = R.TEMP_C_AT_ZERO, R.TEMP_C_PER_LSB, R.SUPPLY_V_PER_LSB
+    from ahrsd.drivers.adis16405 import _SUPPLY_MAX_LSB, _SUPPLY_MIN_LSB
+
+    prev9, runs9 = np.zeros(9, np.int64), np.zeros(9, np.int64)
+    read_one = chip_source.ChipSource.read_one
+    new_data, gap, stale = int(SampleFlags.NEW_DATA), int(SampleFlags.GAP_BEFORE), int(SampleFlags.STALE)
+    kept: dict = {}
+
+    def compiled(self, now: float):
+        timer, driver, clock = self.timer, self.driver, self.clock
+        if not (driver.samples_as_records and self._common_timer and timer.hi is not None):
+            return read_one(self, now)
+        args = kept.get("args")
+        if args is None:
+            args = kept["args"] = (np.array(driver._full_scale9, np.int64), np.array(driver._scale9_list), prev9,
+                                   runs9, driver._gyro_range_lsb, driver._jump_lsb)
+        now = max(now, clock())
+        self._read_start = now
+        rx = driver.read_burst()
+        prev_gx = driver._prev_gx
+        out = decode(rx, *args, 0 if prev_gx is None else prev_gx, _SUPPLY_MIN_LSB, _SUPPLY_MAX_LSB)
+        t = None if out[0] or driver.newer_sample_taken else timer.fresh_after_first(now, clock(), True)
+        if t is None:
+            s = driver.decode_burst(rx, self._stamp)
+            return None if s.flags & stale else s
+        driver.counters["new_samples"] += 1
+        driver._prev_gx, driver._burst_supply_lsb = out[1], out[2]
+        t_s, k, lost = t
+        return SampleRecord((t_s, *out[4:], new_data | (gap if lost else 0), 0, k))
+
+    # compiled before the reads start (not at the first read)
+    decode(bytes(26), np.ones(9, np.int64), np.ones(9), prev9, runs9, 1, 1, 0, _SUPPLY_MIN_LSB, _SUPPLY_MAX_LSB)
+    chip_source.ChipSource.read_one = compiled
 
 
 def _threads(pid: int) -> dict[str, tuple[float, float, float]]:
@@ -359,6 +445,8 @@ def main() -> None:
     ap.add_argument("--bound", action="store_true",
                     help="the common read cut to the transfer, the timer's step and a record made once: what a "
                          "faster frame decode could save at most (not a reader: the frames are not looked at)")
+    ap.add_argument("--compiled-read", action="store_true",
+                    help="the common read's frame decode in one numba call (not a reader: a measurement)")
     ap.add_argument("--import-numba", action="store_true",
                     help="the reader process imports numba before it opens the chip (its start's cost)")
     ap.add_argument("--compiled-decode", action="store_true",
@@ -398,6 +486,8 @@ def main() -> None:
         os.environ["READER_CALLS_BOUND"] = "1"
     if args.import_numba:
         os.environ["READER_CALLS_IMPORT_NUMBA"] = "1"
+    if args.compiled_read:
+        os.environ["READER_CALLS_COMPILED"] = "1"
     process_source._child = child
     load0 = os.getloadavg()[0]
     spawned = time.monotonic()

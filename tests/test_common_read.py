@@ -1,4 +1,4 @@
-"""The chip source's common read (drivers.chip_source.ChipSource._common_read: a clean fresh frame with a certain
+"""The chip source's common read (drivers.chip_source.ChipSource.read_one's own: a clean fresh frame with a certain
 index, decoded in one function) gives what the driver's and the timer's general path give: the same record, the
 same error, the same timer state and the same counters, read after read, on the clean chip and through every
 fault kind; and it is the path the clean chip's reads take."""
