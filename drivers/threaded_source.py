@@ -31,7 +31,10 @@ import threading
 import time
 from typing import Callable
 
+import numpy as np
+
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.read_failures import ReadFailures
 from ahrsd.drivers.source_interface import LiveSource, WaitingSource
@@ -142,6 +145,8 @@ class ThreadedSource(LiveSource):
         self._lock = threading.Lock()          # the hand-over buffer and the error
         self._inner_lock = threading.Lock()    # the inner source: a read, or counters() from the event loop
         self._buf: list[ImuSample] = []
+        self._blocks: list[SampleBlock] = []    # a block source's hand-over buffer (_read_on_deadlines)
+        self._blocks_len = 0
         self._gap_pending = False
         self._error: Exception | None = None
         self._stop = threading.Event()
@@ -249,8 +254,8 @@ class ThreadedSource(LiveSource):
                 continue
             stats["reads"] += 1
             failures.read_ok()
-            if samples:
-                self._hand_over_all(samples)
+            if len(samples):
+                self._hand_over_block(samples)
                 stats["handovers"] += 1
                 stats["handovers_on_due"] += on_due
                 os.eventfd_write(self.ready_fd, 1)
@@ -317,29 +322,26 @@ class ThreadedSource(LiveSource):
             if len(buf) > self.stats["handover_max_backlog"]:
                 self.stats["handover_max_backlog"] = len(buf)
 
-    def _hand_over_all(self, samples: list) -> None:
-        """A block read at once: as `_hand_over` of each sample, under one acquisition of the lock."""
+    def _hand_over_block(self, block: SampleBlock) -> None:
+        """A block read at once (the kernel's buffer), kept as it is for the daemon: the rule of `_hand_over` (a
+        full buffer drops what does not fit, counted, and the next sample handed over carries GAP_BEFORE), under
+        one acquisition of the lock."""
         with self._lock:
             self._error = None
-            buf = self._buf
-            room = self._capacity - len(buf)
-            if room < len(samples):
-                self.stats["handover_dropped"] += len(samples) - max(0, room)
-                samples = samples[:max(0, room)]
-                if not samples:
-                    self._gap_pending = True
-                    return
-                gap_after = True
-            else:
-                gap_after = False
-            if self._gap_pending:
-                first = samples[0]
-                samples = [first.with_values(flags=first.flags | SampleFlags.GAP_BEFORE), *samples[1:]]
-            self._gap_pending = gap_after
-            buf.extend(samples)
-            self.stats["handed_over"] += len(samples)
-            if len(buf) > self.stats["handover_max_backlog"]:
-                self.stats["handover_max_backlog"] = len(buf)
+            n = len(block)
+            room = self._capacity - self._blocks_len
+            if room < n:
+                self.stats["handover_dropped"] += n - max(0, room)
+                block = _rows(block, max(0, room))
+            if len(block):
+                if self._gap_pending:
+                    block.flags[0] |= _GAP_BEFORE     # the block's own list (drivers.iio_source decode_block)
+                self._blocks.append(block)
+                self._blocks_len += len(block)
+                self.stats["handed_over"] += len(block)
+                if self._blocks_len > self.stats["handover_max_backlog"]:
+                    self.stats["handover_max_backlog"] = self._blocks_len
+            self._gap_pending = room < n
 
     # -- the SensorSource interface ------------------------------------------------------------------------------
 
@@ -361,12 +363,15 @@ class ThreadedSource(LiveSource):
             except BlockingIOError:                 # the daemon again
                 pass
         with self._lock:
-            out, self._buf = self._buf, []
+            if self._blocks:
+                out, self._blocks, self._blocks_len = _joined(self._blocks), [], 0
+            else:
+                out, self._buf = self._buf, []
             error = self._error
-        if not out and error is not None:
+        if not len(out) and error is not None:
             raise error
-        if out:
-            self._last_delivered = out[-1].counter
+        if len(out):
+            self._last_delivered = out.counter[-1] if type(out) is SampleBlock else out[-1].counter
         return out
 
     def counters(self) -> dict:
@@ -381,7 +386,10 @@ class ThreadedSource(LiveSource):
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(2.0)
         with self._lock:     # sample indices read (or lost) after the last hand-over: the chip's truth has them
-            if self._buf:
+            if self._blocks:
+                first = self._blocks[0].counter[0] if self._last_delivered is None else self._last_delivered + 1
+                self.stats["undelivered_at_close"] = self._blocks[-1].counter[-1] - first + 1
+            elif self._buf:
                 first = self._buf[0].counter if self._last_delivered is None else self._last_delivered + 1
                 self.stats["undelivered_at_close"] = self._buf[-1].counter - first + 1
         if self._saved_switch_interval is not None:
@@ -391,6 +399,22 @@ class ThreadedSource(LiveSource):
         if self.ready_fd is not None:
             os.close(self.ready_fd)
             self.ready_fd = None
+
+
+def _rows(block: SampleBlock, n: int) -> SampleBlock:
+    """The first n samples of a block of columns."""
+    return SampleBlock(block.t_s[:n], block.vectors[:n], block.temp_c[:n], block.supply_v[:n], block.flags[:n],
+                       block.diag_stat[:n], block.counter[:n])
+
+
+def _joined(blocks: list[SampleBlock]) -> SampleBlock:
+    """Blocks handed over since the daemon's last poll, as one (one in the common case: returned as it is)."""
+    if len(blocks) == 1:
+        return blocks[0]
+    return SampleBlock([t for b in blocks for t in b.t_s], np.concatenate([b.vectors for b in blocks]),
+                       [v for b in blocks for v in b.temp_c], [v for b in blocks for v in b.supply_v],
+                       [v for b in blocks for v in b.flags], [v for b in blocks for v in b.diag_stat],
+                       [v for b in blocks for v in b.counter])
 
 
 class HandoverPlan:
