@@ -504,11 +504,11 @@ class IioSource(LiveSource):
         lsb = (lsb ^ self._half) - self._half               # sign-extend the signed channels
         si = (lsb + self._lsb_offset) * self._si_per_lsb
         absraw = np.abs(lsb[:, 1:10])
-        garbage = (absraw > 1.25 * self._full9).any(axis=1)
         # each sensor (3 words) at or beyond its range: saturated, hence invalid
         saturated = (absraw >= self._full9).reshape(len(storage), 3, 3).any(axis=2)
         alarm = ((storage[:, 1:10] >> 14) & 1).any(axis=1)                # the chip's flag bits above realbits
-        return _Block(si=si, new_data=((storage[:, 1:10] >> 15) & 1).all(axis=1).tolist(), garbage=garbage.tolist(),
+        return _Block(si=si, new_data=((storage[:, 1:10] >> 15) & 1).all(axis=1).tolist(),
+                      garbage=(absraw > 1.25 * self._full9).any(axis=1).tolist(),
                       status=(saturated @ _SATURATED_BITS + alarm * _ALARM).tolist())
 
     def _sequence_flags(self, t_ns: int) -> int | None:

@@ -258,7 +258,7 @@ class ThreadedSource(LiveSource):
                 self._hand_over_block(samples)
                 stats["handovers"] += 1
                 stats["handovers_on_due"] += on_due
-                os.eventfd_write(self.ready_fd, 1)
+                os.eventfd_write(self.ready_fd, 1)        # the daemon's loop wakes and polls (sample_reader)
 
     def _read_per_sample(self) -> None:
         """A per-sample source: the hand-over tick, wait for the next sample, read it, hand it over. The read is
