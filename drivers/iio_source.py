@@ -554,9 +554,11 @@ class IioSource(LiveSource):
             raise
         return self.decode_block(data)
 
-    def wait(self, timeout_s: float) -> bool:
+    def wait(self, timeout_s: float, paced: bool = True) -> bool:
         """Block until records are waiting (True) or `timeout_s` passed (False); True also when `poll()` has
-        something else to do (open the buffer, or a re-open attempt is due)."""
+        something else to do (open the buffer, or a re-open attempt is due). paced: not before READ_EVERY_S after
+        the last read (a reader that reads whenever records wait: a reader process's thread); False: at once (the
+        daemon's reader thread waiting for the first record after an output's deadline, drivers.threaded_source)."""
         if self._fd is None:
             dt = self._next_attempt - self._clock() if self._lost_reason else 0.0
             if dt > 0:
@@ -565,7 +567,7 @@ class IioSource(LiveSource):
         if not self._streaming:
             time.sleep(min(timeout_s, NO_WRITER_POLL_S))
             return True
-        early = self._read_at + READ_EVERY_S - self._clock()
+        early = self._read_at + READ_EVERY_S - self._clock() if paced else 0.0
         if early > 0:
             time.sleep(early)                 # the kernel buffers meanwhile: read a block, not a scan
         return bool(select.select([self._fd], [], [], timeout_s)[0])

@@ -231,6 +231,7 @@ class ThreadedSource(LiveSource):
         "Performance", session 41)."""
         failures = ReadFailures()
         inner, stop, told, clock, plan, stats = self.inner, self._stop, self._told, self._clock, self._plan, self.stats
+        next_record_s = 2.0 / self.sample_rate_hz     # the longest wait for the next record after a deadline
         plan.last_s = clock()
         while not stop.is_set():
             # the order matters against hand_over_by (the event loop's thread): a deadline told before
@@ -248,6 +249,11 @@ class ThreadedSource(LiveSource):
             try:
                 with self._inner_lock:
                     samples = inner.poll()
+                # nothing new at the deadline (a latest-by read came just before it): the output goes with the
+                # next record, not 25 ms later with the next hand-over
+                if on_due and not len(samples) and inner.wait(next_record_s, paced=False):
+                    with self._inner_lock:
+                        samples = inner.poll()
             except Exception as exc:  # noqa: BLE001 - BusError / OSError: the source re-opens on its own
                 self._read_failed(exc, failures)
                 os.eventfd_write(self.ready_fd, 1)        # the daemon reports it at its next poll

@@ -213,9 +213,15 @@ class _Buffer(LiveSource):
         self.k = 0
         self.pending = 0
         self.reads = 0
+        self.arriving = 0          # records the kernel writes while a reader waits for the next one
+        self.waits_for_next = 0
 
-    def wait(self, timeout_s: float) -> bool:
-        return True
+    def wait(self, timeout_s: float, paced: bool = True) -> bool:
+        if not paced:
+            self.waits_for_next += 1
+            self.pending += self.arriving
+            self.arriving = 0
+        return self.pending > 0
 
     def poll(self) -> SampleBlock:
         self.reads += 1
@@ -276,6 +282,24 @@ def test_the_reader_thread_hands_over_on_the_deadline_told_and_wakes_the_daemon(
     finally:
         src.close()
     assert src.ready_fd is None
+
+
+def test_a_deadline_with_no_record_waiting_is_served_with_the_next_record(monkeypatch):
+    """A latest-by read just before the deadline took every record: the read at the deadline finds none, so the reader
+    waits (unpaced) for the next record and hands it over, rather than leaving the output to the next hand-over."""
+    monkeypatch.setattr(threaded_source, "HANDOVER_MAX_S", 1000.0)
+    inner = _Buffer()
+    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    try:
+        src.poll()
+        assert _wait_for(lambda: src._waiting_until > _now() + 100)
+        inner.arriving = 1                                 # nothing waiting; one record comes after the deadline
+        src.hand_over_by(_now())
+        assert _readable(src.ready_fd, MARGIN_S)
+        assert list(src.poll().counter) == [0] and inner.waits_for_next == 1
+        assert src.stats["handovers_on_due"] == 1
+    finally:
+        src.close()
 
 
 def test_a_full_hand_over_buffer_drops_what_does_not_fit_and_flags_the_next_sample():
