@@ -33,10 +33,13 @@ spidev path (drivers.sample_timer), and `lost_samples_host` counts them. The cou
 threaded handler reads the chip within a period of its interrupt: a handler later than that reads the next
 sample under the earlier stamp (then a scan with ND clear, counted `stale`, or one step too many follows).
 
-Read off the event loop: `wait(timeout_s)` blocks (in select, without the GIL) until records are waiting, so
-drivers.threaded_source's reader thread drains the kernel's buffer in blocks as they come; the kernel buffer
-(`buffer/length` scans) is what a stalled reader has before a scan is lost, the thread's hand-over buffer what
-a stalled event loop has.
+Read off the event loop: in the daemon's process drivers.threaded_source's reader thread reads the kernel's buffer
+when the daemon's next output falls due (and at the latest every 25 ms), decodes the records into one block of
+columns (`decode_block`: core.sample_block, no ImuSample per record) and wakes the daemon; the kernel holds the
+records meanwhile. `wait(timeout_s)` blocks (in select, without the GIL) until records are waiting: paced to
+READ_EVERY_S in a reader process's thread (`reader = "process"`, whose own hand-over decides), at once for the
+first record after a deadline. The kernel buffer (`buffer/length` scans) is what a stalled reader has before a
+scan is lost, the thread's hand-over buffer what a stalled event loop has.
 
 The sampling rate (`[sensor] rate_hz`, `IioSource(rate_hz=...)`): the driver's `sampling_frequency` attribute
 (IIO_CHAN_INFO_SAMP_FREQ, shared by all channels). A write is parsed as micro-units (`iio_write_channel_info`:
@@ -93,8 +96,8 @@ UT_PER_GAUSS = 100.0
 BACKOFF_FIRST_S = 0.2                # re-open attempts after the device vanished (as drivers.reconnecting)
 BACKOFF_MAX_S = 5.0
 NO_WRITER_POLL_S = 0.01              # the FIFO stand-in before its writer opened: select() would not block
-READ_EVERY_S = 0.004                 # blocks: the reader drains the buffer at most this often (the event loop
-                                     # takes samples every 5 ms; a wake per scan costs a decode per scan)
+READ_EVERY_S = 0.004                 # a paced wait (a reader process's thread) reads at most this often: a
+                                     # wake per scan would cost a decode per scan
 
 # adis16400_get_freq / adis16400_set_freq: the two time bases in milli-SPS, integer arithmetic
 DRIVER_FAST_BASE_MSPS = 1638404

@@ -3,6 +3,12 @@ in a dedicated thread, or a block source that buffers on its own (drivers.iio_so
 drained by one, the samples handed to the daemon in blocks through a bounded buffer (`poll()`, the block path a
 recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never delays a read.
 
+A block source is read when the daemon's next output falls due (`hand_over_by`) and at the latest HANDOVER_MAX_S
+after the last hand-over (`HandoverPlan`), its block handed over as columns and the daemon woken through an eventfd
+(`ready_fd`): the reader process's contract (drivers.process_source), so the daemon wakes once an output due, not on
+its 200 Hz tick, and the kernel's buffer is read ~70 times a second, not 250 (docs/daemon.md "Performance",
+Session 41 (iiowake)).
+
 What the GIL does to it (docs/drivers.md, measured with bench/reader_gil.py): the interpreter's switch
 interval bounds how long this thread waits for the GIL while the event loop runs Python code; at 819.2 SPS the
 chip keeps a sample for 1.22 ms, so the source lowers it to SWITCH_INTERVAL_S for the whole process while it
