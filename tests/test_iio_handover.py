@@ -163,17 +163,10 @@ def _run_reader(rates_hz):
     seen: list[int] = []
     reader.listeners.add(lambda s, e: seen.append(s.counter))
 
-    async def main():
-        task = loop.create_task(reader.run(loop))
-        await asyncio.sleep(RUN_S)
-        task.cancel()
-        try:
-            await task
-        except BaseException:  # noqa: BLE001 - the cancellation
-            pass
-
+    task = loop.create_task(reader.run(loop))
+    loop.call_at(loop.time() + RUN_S, task.cancel)          # the daemon stops after RUN_S of loop time
     try:
-        loop.run_until_complete(main())
+        loop.run_until_complete(asyncio.gather(task, return_exceptions=True))
     finally:
         loop.close()
         source.close()
