@@ -6,8 +6,8 @@ recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the even
 A block source is read when the daemon's next output falls due (`hand_over_by`) and at the latest HANDOVER_MAX_S
 after the last hand-over (`HandoverPlan`), its block handed over as columns and the daemon woken through an eventfd
 (`ready_fd`): the reader process's contract (drivers.process_source), so the daemon wakes once an output due, not on
-its 200 Hz tick, and the kernel's buffer is read ~70 times a second, not 250 (docs/daemon.md "Performance",
-Session 41 (iiowake)).
+its polling tick, and the kernel's buffer is read once an output due, not every few ms (docs/daemon.md
+"Performance": what it saves).
 
 What the GIL does to it (docs/drivers.md, measured with bench/reader_gil.py): the interpreter's switch
 interval bounds how long this thread waits for the GIL while the event loop runs Python code; at 819.2 SPS the
@@ -233,8 +233,8 @@ class ThreadedSource(LiveSource):
         """A block source in the daemon's process (the kernel's IIO buffer, which holds the records meanwhile): read
         every record waiting when the daemon's next output falls due, or HANDOVER_MAX_S after the last hand-over
         (`HandoverPlan`), hand the block over and make `ready_fd` readable. One read and one wake of the event loop
-        per output due, instead of a read every few ms and a daemon poll on a 200 Hz tick (docs/daemon.md
-        "Performance", session 41)."""
+        per output due, instead of a read every few ms and a daemon poll on its tick (docs/daemon.md
+        "Performance")."""
         failures = ReadFailures()
         inner, stop, told, clock, plan, stats = self.inner, self._stop, self._told, self._clock, self._plan, self.stats
         next_record_s = 2.0 / self.sample_rate_hz     # the longest wait for the next record after a deadline
