@@ -408,7 +408,8 @@ class ThreadedSource(LiveSource):
             sys.setswitchinterval(self._saved_switch_interval)
             self._saved_switch_interval = None
         self.inner.close()
-        if self.ready_fd is not None:
+        # a reader thread that outlived the join may still write it: its number must not go to another file
+        if self.ready_fd is not None and (self._thread is None or not self._thread.is_alive()):
             os.close(self.ready_fd)
             self.ready_fd = None
 
