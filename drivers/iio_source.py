@@ -33,10 +33,13 @@ spidev path (drivers.sample_timer), and `lost_samples_host` counts them. The cou
 threaded handler reads the chip within a period of its interrupt: a handler later than that reads the next
 sample under the earlier stamp (then a scan with ND clear, counted `stale`, or one step too many follows).
 
-Read off the event loop: `wait(timeout_s)` blocks (in select, without the GIL) until records are waiting, so
-drivers.threaded_source's reader thread drains the kernel's buffer in blocks as they come; the kernel buffer
-(`buffer/length` scans) is what a stalled reader has before a scan is lost, the thread's hand-over buffer what
-a stalled event loop has.
+Read off the event loop: in the daemon's process drivers.threaded_source's reader thread reads the kernel's buffer
+when the daemon's next output falls due (and at the latest every 25 ms), decodes the records into one block of
+columns (`decode_block`: core.sample_block, no ImuSample per record) and wakes the daemon; the kernel holds the
+records meanwhile. `wait(timeout_s)` blocks (in select, without the GIL) until records are waiting: paced to
+READ_EVERY_S in a reader process's thread (`reader = "process"`, whose own hand-over decides), at once for the
+first record after a deadline. The kernel buffer (`buffer/length` scans) is what a stalled reader has before a
+scan is lost, the thread's hand-over buffer what a stalled event loop has.
 
 The sampling rate (`[sensor] rate_hz`, `IioSource(rate_hz=...)`): the driver's `sampling_frequency` attribute
 (IIO_CHAN_INFO_SAMP_FREQ, shared by all channels). A write is parsed as micro-units (`iio_write_channel_info`:
@@ -78,6 +81,7 @@ from pathlib import Path
 import numpy as np
 
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers import registers as R
 from ahrsd.drivers.chip_source import ADIS16405_RATE_HZ
 from ahrsd.drivers.errors import BusError
@@ -92,8 +96,8 @@ UT_PER_GAUSS = 100.0
 BACKOFF_FIRST_S = 0.2                # re-open attempts after the device vanished (as drivers.reconnecting)
 BACKOFF_MAX_S = 5.0
 NO_WRITER_POLL_S = 0.01              # the FIFO stand-in before its writer opened: select() would not block
-READ_EVERY_S = 0.004                 # blocks: the reader drains the buffer at most this often (the event loop
-                                     # takes samples every 5 ms; a wake per scan costs a decode per scan)
+READ_EVERY_S = 0.004                 # a paced wait (a reader process's thread) reads at most this often: a
+                                     # wake per scan would cost a decode per scan
 
 # adis16400_get_freq / adis16400_set_freq: the two time bases in milli-SPS, integer arithmetic
 DRIVER_FAST_BASE_MSPS = 1638404
@@ -108,19 +112,19 @@ CHANNELS = ("in_voltage0_supply", "in_anglvel_x", "in_anglvel_y", "in_anglvel_z"
             "in_accel_z", "in_magn_x", "in_magn_y", "in_magn_z", "in_temp0", "in_voltage1", "in_timestamp")
 _TYPE = re.compile(r"^(be|le):([su])(\d+)/(\d+)(?:X(\d+))?>>(\d+)$")
 _GAP_BEFORE, _ALARM, _NEW_DATA = int(SampleFlags.GAP_BEFORE), int(SampleFlags.ALARM), int(SampleFlags.NEW_DATA)
+# a saturated sensor's flags (saturated, hence invalid), gyro / accel / mag: disjoint bits, so a sum is their OR
+_SATURATED_BITS = np.array([int(SampleFlags.GYRO_SATURATED | SampleFlags.GYRO_INVALID),
+                            int(SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID),
+                            int(SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID)], dtype=np.int64)
+_SATURATED_ANY = int(_SATURATED_BITS.sum())
 
 
 class _Block(NamedTuple):
     """A block of records decoded at once (IioSource._convert): rows are records."""
-    gyro: np.ndarray         # rad/s, (n, 3)
-    accel: np.ndarray        # m/s², (n, 3)
-    mag: np.ndarray          # µT, (n, 3)
-    temp_c: np.ndarray       # (n,)
-    supply_v: np.ndarray     # (n,)
-    new_data: np.ndarray     # the chip's ND bit set on every sensor word, (n,) bool
-    alarm: np.ndarray        # the chip's EA bit on any sensor word, (n,) bool
-    garbage: np.ndarray      # a sensor word beyond 1.25 × its range: not a frame the chip sent, (n,) bool
-    saturated: np.ndarray    # each sensor word at or beyond its range, (n, 9) bool
+    si: np.ndarray           # the 12 data channels in SI, (n, 12): supply V, gyro rad/s, accel m/s², mag µT, temp °C
+    new_data: list           # the chip's ND bit set on every sensor word, (n,) bools
+    garbage: list            # a sensor word beyond 1.25 × its range: not a frame the chip sent, (n,) bools
+    status: list             # ALARM (the chip's EA bit on any sensor word) and each saturated sensor's flags, (n,) ints
 
 
 @dataclass(frozen=True)
@@ -329,6 +333,7 @@ class IioSource(LiveSource):
                                             for e in self.elements],
                                 "offsets": [e.offset for e in self.elements], "itemsize": self.record_bytes})
         self._period_ns = 1e9 / self.sample_rate_hz
+        self._stamp_type = {e.name: e.type for e in self.elements}["in_timestamp"]
         self._prepare_words()
         self.description = f"{self.name} through the kernel's IIO driver ({d.name}, {self.record_bytes}-byte scans)"
         log.info("IIO %s: %s at %.3f SPS, %d-byte records, buffer %d scans", d.name, self.name,
@@ -443,25 +448,48 @@ class IioSource(LiveSource):
 
     def decode(self, data: bytes) -> list[ImuSample]:
         """Whole scan records -> ImuSamples (gaps, flags and counts as the module doc says)."""
+        return list(self.decode_block(data))
+
+    def decode_block(self, data: bytes) -> SampleBlock:
+        """Whole scan records -> the block of their samples, as columns (core.sample_block: no ImuSample built;
+        the daemon calibrates the block's arrays at once). A record is a sample when it is not garbage (beyond any
+        range the chip reports) and the chip's new-data bit is set (else the interrupt came without a new sample:
+        `stale`), placed in the sequence by its stamp (`_sequence_flags`). The loop over the records touches only
+        Python lists: a numpy scalar or call per record costs more than the record's own work."""
         rec = np.frombuffer(data, dtype=self._dtype)
         n = len(rec)
         if n == 0:
-            return []
-        ts_ns = {e.name: e.type for e in self.elements}["in_timestamp"].values(rec["in_timestamp"])
+            return SampleBlock((), np.empty((0, 9)), (), (), (), (), ())
+        ts_ns = self._stamp_type.values(rec["in_timestamp"]).tolist()
         block = self._convert(self._storage_words(data, rec))
-        out: list[ImuSample] = []
-        self.stats["records"] += n
+        stats = self.stats
+        stats["records"] += n
+        garbage, new_data, status = block.garbage, block.new_data, block.status
+        rows, t_s, flags, counter = [], [], [], []
+        sequence_flags = self._sequence_flags
         for i in range(n):
-            if not self._is_a_sample(block, i):
+            if garbage[i]:
+                stats["garbage_frames"] += 1
                 continue
-            flags = self._sequence_flags(int(ts_ns[i]))
-            if flags is None:
+            if not new_data[i]:
+                stats["stale"] += 1       # the interrupt came but the chip had no new sample: not a sample
                 continue
-            flags |= self._status_flags(block, i)
-            out.append(ImuSample(self._last_ns * 1e-9, block.gyro[i], block.accel[i], block.mag[i],
-                                 float(block.temp_c[i]), float(block.supply_v[i]), SampleFlags(flags), 0, self._k))
-        self.stats["samples"] += len(out)
-        return out
+            f = sequence_flags(ts_ns[i])
+            if f is None:
+                continue
+            st = status[i]
+            if st & _ALARM:
+                stats["ea_flags"] += 1
+            if st & _SATURATED_ANY:
+                stats["saturations"] += 1
+            rows.append(i)
+            t_s.append(self._last_ns * 1e-9)
+            flags.append(f | st)
+            counter.append(self._k)
+        stats["samples"] += len(rows)
+        si = block.si if len(rows) == n else block.si[rows]
+        return SampleBlock(t_s, si[:, 1:10].copy(), si[:, 10].tolist(), si[:, 0].tolist(), flags, [0] * len(rows),
+                           counter)
 
     def _storage_words(self, data: bytes, rec: np.ndarray) -> np.ndarray:
         """The 12 data channels' storage words of each record, (n, 12) int64: a strided view when they lie side by
@@ -479,20 +507,12 @@ class IioSource(LiveSource):
         lsb = (lsb ^ self._half) - self._half               # sign-extend the signed channels
         si = (lsb + self._lsb_offset) * self._si_per_lsb
         absraw = np.abs(lsb[:, 1:10])
-        return _Block(gyro=si[:, 1:4], accel=si[:, 4:7], mag=si[:, 7:10], temp_c=si[:, 10], supply_v=si[:, 0],
-                      new_data=((storage[:, 1:10] >> 15) & 1).all(axis=1),    # the chip's flag bits above realbits
-                      alarm=((storage[:, 1:10] >> 14) & 1).any(axis=1),
-                      garbage=(absraw > 1.25 * self._full9).any(axis=1), saturated=absraw >= self._full9)
-
-    def _is_a_sample(self, block: _Block, i: int) -> bool:
-        """Record i is a sample: not garbage (beyond any range the chip reports), the chip's new-data bit set."""
-        if block.garbage[i]:
-            self.stats["garbage_frames"] += 1
-            return False
-        if not block.new_data[i]:
-            self.stats["stale"] += 1       # the interrupt came but the chip had no new sample: not a sample
-            return False
-        return True
+        # each sensor (3 words) at or beyond its range: saturated, hence invalid
+        saturated = (absraw >= self._full9).reshape(len(storage), 3, 3).any(axis=2)
+        alarm = ((storage[:, 1:10] >> 14) & 1).any(axis=1)                # the chip's flag bits above realbits
+        return _Block(si=si, new_data=((storage[:, 1:10] >> 15) & 1).all(axis=1).tolist(),
+                      garbage=(absraw > 1.25 * self._full9).any(axis=1).tolist(),
+                      status=(saturated @ _SATURATED_BITS + alarm * _ALARM).tolist())
 
     def _sequence_flags(self, t_ns: int) -> int | None:
         """The sample stamped t_ns placed in the sequence: NEW_DATA, GAP_BEFORE after lost samples (the index
@@ -512,24 +532,6 @@ class IioSource(LiveSource):
         self._k += step
         return flags
 
-    def _status_flags(self, block: _Block, i: int) -> int:
-        """The chip's alarm bit and the saturated (hence invalid) sensors of sample i."""
-        flags = 0
-        stats = self.stats
-        if block.alarm[i]:
-            flags |= _ALARM
-            stats["ea_flags"] += 1
-        s = block.saturated[i]
-        if s[0:3].any():
-            flags |= int(SampleFlags.GYRO_SATURATED | SampleFlags.GYRO_INVALID)
-        if s[3:6].any():
-            flags |= int(SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID)
-        if s[6:9].any():
-            flags |= int(SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID)
-        if s.any():
-            stats["saturations"] += 1
-        return flags
-
     def _open_buffer(self) -> None:
         try:
             _write(self.sysfs / "buffer" / "enable", "1")
@@ -539,8 +541,9 @@ class IioSource(LiveSource):
         self._streaming = False
         self._rest = b""
 
-    def poll(self) -> list[ImuSample]:
-        """Every whole record waiting, decoded. BusError while the device is gone (re-opened with backoff)."""
+    def poll(self) -> SampleBlock:
+        """Every whole record waiting, decoded into a block of samples (decode_block: a sequence of ImuSamples, built
+        when asked for). BusError while the device is gone (re-opened with backoff)."""
         if self._fd is None:
             if self._lost_reason:
                 self._reopen()
@@ -552,11 +555,13 @@ class IioSource(LiveSource):
         except BusError as exc:
             self._vanished(exc)
             raise
-        return self.decode(data)
+        return self.decode_block(data)
 
-    def wait(self, timeout_s: float) -> bool:
+    def wait(self, timeout_s: float, paced: bool = True) -> bool:
         """Block until records are waiting (True) or `timeout_s` passed (False); True also when `poll()` has
-        something else to do (open the buffer, or a re-open attempt is due)."""
+        something else to do (open the buffer, or a re-open attempt is due). paced: not before READ_EVERY_S after
+        the last read (a reader that reads whenever records wait: a reader process's thread); False: at once (the
+        daemon's reader thread waiting for the first record after an output's deadline, drivers.threaded_source)."""
         if self._fd is None:
             dt = self._next_attempt - self._clock() if self._lost_reason else 0.0
             if dt > 0:
@@ -565,7 +570,7 @@ class IioSource(LiveSource):
         if not self._streaming:
             time.sleep(min(timeout_s, NO_WRITER_POLL_S))
             return True
-        early = self._read_at + READ_EVERY_S - self._clock()
+        early = self._read_at + READ_EVERY_S - self._clock() if paced else 0.0
         if early > 0:
             time.sleep(early)                 # the kernel buffers meanwhile: read a block, not a scan
         return bool(select.select([self._fd], [], [], timeout_s)[0])

@@ -68,8 +68,9 @@ class WaitingSource(SensorSource, Protocol):
     """A block source (`per_sample` False) whose reader can wait for its data: the kernel's IIO buffer
     (drivers.iio_source), drained by a reader thread (drivers.threaded_source)."""
 
-    def wait(self, timeout_s: float) -> bool:
-        """Block until new data is ready (True) or `timeout_s` passes (False)."""
+    def wait(self, timeout_s: float, paced: bool = True) -> bool:
+        """Block until new data is ready (True) or `timeout_s` passes (False); paced: the source may hold a
+        reader back so that it reads blocks, not single records (False: as soon as a record is there)."""
 
 
 class LiveSource:

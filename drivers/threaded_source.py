@@ -3,6 +3,12 @@ in a dedicated thread, or a block source that buffers on its own (drivers.iio_so
 drained by one, the samples handed to the daemon in blocks through a bounded buffer (`poll()`, the block path a
 recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never delays a read.
 
+A block source is read when the daemon's next output falls due (`hand_over_by`) and at the latest HANDOVER_MAX_S
+after the last hand-over (`HandoverPlan`), its block handed over as columns and the daemon woken through an eventfd
+(`ready_fd`): the reader process's contract (drivers.process_source), so the daemon wakes once an output due, not on
+its polling tick, and the kernel's buffer is read once an output due, not every few ms (docs/daemon.md
+"Performance": what it saves).
+
 What the GIL does to it (docs/drivers.md, measured with bench/reader_gil.py): the interpreter's switch
 interval bounds how long this thread waits for the GIL while the event loop runs Python code; at 819.2 SPS the
 chip keeps a sample for 1.22 ms, so the source lowers it to SWITCH_INTERVAL_S for the whole process while it
@@ -24,13 +30,17 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 import os
 import sys
 import threading
 import time
 from typing import Callable
 
+import numpy as np
+
 from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.read_failures import ReadFailures
 from ahrsd.drivers.source_interface import LiveSource, WaitingSource
@@ -42,6 +52,11 @@ SWITCH_INTERVAL_S = 0.0002         # the GIL hand-over bound while a reader thre
 STALE_REREAD_PERIODS = 0.5        # after a stale read whose next read time is past, re-read this much later
 FIFO_PRIORITY = 50                 # SCHED_FIFO priority of the reader (1..99; below the kernel's IRQ threads)
 _GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
+# A block source read in the daemon's process (the kernel's IIO buffer) hands its block over when the daemon's next
+# output falls due (`hand_over_by`, as the reader process does: drivers.process_source) and at the latest this long
+# after the last hand-over: below the daemon's LATE_AFTER_S (50 ms, daemon.sample_reader), so a block's oldest
+# sample is not counted late, and the reader process's HANDOVER_MAX_S, so the daemon's stand-in tick is the same.
+HANDOVER_MAX_S = 0.025
 
 
 def _sleep_until(clock, t: float) -> None:
@@ -112,6 +127,8 @@ class ThreadedSource(LiveSource):
     monotonic_offset_s = 0.0
     chip = property(lambda self: self.inner.chip)
     bus = property(lambda self: self.inner.bus)       # a chip source's bus (bench/latency.py reads its clock)
+    ready_fd: int | None = None          # a block source's eventfd, readable once a block was handed over
+    handover_max_s = 0.0
 
     def __init__(self, inner, *, clock=time.monotonic, sleep_until=None,
                  capacity_samples: int = CAPACITY_SAMPLES, realtime: bool = True,
@@ -134,6 +151,8 @@ class ThreadedSource(LiveSource):
         self._lock = threading.Lock()          # the hand-over buffer and the error
         self._inner_lock = threading.Lock()    # the inner source: a read, or counters() from the event loop
         self._buf: list[ImuSample] = []
+        self._blocks: list[SampleBlock] = []    # a block source's hand-over buffer (_read_on_deadlines)
+        self._blocks_len = 0
         self._gap_pending = False
         self._error: Exception | None = None
         self._stop = threading.Event()
@@ -144,6 +163,14 @@ class ThreadedSource(LiveSource):
                       "wakes_late_quarter": 0, "read_us_max": 0, "stale_rereads_spaced": 0}
         self._last_delivered: int | None = None
         self.after_read = None     # called by the reader thread between reads (drivers.process_source's hand-over)
+        self._plan = HandoverPlan(HANDOVER_MAX_S)
+        self._told = threading.Event()           # hand_over_by told a deadline earlier than the reader's wait
+        self._waiting_until = math.inf           # when the block reader's wait ends (inf: it is not waiting)
+        if not inner.per_sample:
+            # the daemon polls when this becomes readable (daemon.sample_reader `ready_fd`), not on a fixed tick
+            self.ready_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+            self.handover_max_s = HANDOVER_MAX_S
+            self.stats.update({"handovers": 0, "handovers_on_due": 0})
         self.log_realtime = True   # log whether SCHED_FIFO was granted (a reader process reports it instead)
         self.realtime_refused: str | None = None   # "" granted, else why not (None: not asked)
 
@@ -177,8 +204,10 @@ class ThreadedSource(LiveSource):
                 log_realtime_priority("sensor reader thread", self.realtime_refused)
         if self.inner.per_sample:
             self._read_per_sample()
+        elif self.after_read is not None:
+            self._read_blocks()            # in a reader process: its own hand-over decides (drivers.process_source)
         else:
-            self._read_blocks()
+            self._read_on_deadlines()
 
     def _read_blocks(self) -> None:
         """A source that buffers on its own (the kernel's IIO buffer): wait for data, take every record."""
@@ -199,6 +228,49 @@ class ThreadedSource(LiveSource):
             failures.read_ok()
             for sample in samples:
                 self._hand_over(sample)
+
+    def _read_on_deadlines(self) -> None:
+        """A block source in the daemon's process (the kernel's IIO buffer, which holds the records meanwhile): read
+        every record waiting when the daemon's next output falls due, or HANDOVER_MAX_S after the last hand-over
+        (`HandoverPlan`), hand the block over and make `ready_fd` readable. One read and one wake of the event loop
+        per output due, instead of a read every few ms and a daemon poll on its tick (docs/daemon.md
+        "Performance")."""
+        failures = ReadFailures()
+        inner, stop, told, clock, plan, stats = self.inner, self._stop, self._told, self._clock, self._plan, self.stats
+        next_record_s = 2.0 / self.sample_rate_hz     # the longest wait for the next record after a deadline
+        plan.last_s = clock()
+        while not stop.is_set():
+            # the order matters against hand_over_by (the event loop's thread): a deadline told before
+            # next_read_s() is in it; one told after finds _waiting_until either inf or the wait's end, and sets
+            # `told` if it is earlier, so the wait below returns at once
+            self._waiting_until = math.inf
+            told.clear()
+            target = self._waiting_until = plan.next_read_s()
+            dt = target - clock()
+            if dt > 0:
+                told.wait(dt)
+                continue
+            self._waiting_until = math.inf
+            on_due = plan.read_at(clock())
+            try:
+                with self._inner_lock:
+                    samples = inner.poll()
+                # nothing new at the deadline (a latest-by read came just before it): the output goes with the
+                # next record, not 25 ms later with the next hand-over
+                if on_due and not len(samples) and inner.wait(next_record_s, paced=False):
+                    with self._inner_lock:
+                        samples = inner.poll()
+            except Exception as exc:  # noqa: BLE001 - BusError / OSError: the source re-opens on its own
+                self._read_failed(exc, failures)
+                os.eventfd_write(self.ready_fd, 1)        # the daemon reports it at its next poll
+                continue
+            stats["reads"] += 1
+            failures.read_ok()
+            if len(samples):
+                self._hand_over_block(samples)
+                stats["handovers"] += 1
+                stats["handovers_on_due"] += on_due
+                os.eventfd_write(self.ready_fd, 1)        # the daemon's loop wakes and polls (sample_reader)
 
     def _read_per_sample(self) -> None:
         """A per-sample source: the hand-over tick, wait for the next sample, read it, hand it over. The read is
@@ -262,18 +334,56 @@ class ThreadedSource(LiveSource):
             if len(buf) > self.stats["handover_max_backlog"]:
                 self.stats["handover_max_backlog"] = len(buf)
 
+    def _hand_over_block(self, block: SampleBlock) -> None:
+        """A block read at once (the kernel's buffer), kept as it is for the daemon: the rule of `_hand_over` (a
+        full buffer drops what does not fit, counted, and the next sample handed over carries GAP_BEFORE), under
+        one acquisition of the lock."""
+        with self._lock:
+            self._error = None
+            n = len(block)
+            room = self._capacity - self._blocks_len
+            if room < n:
+                self.stats["handover_dropped"] += n - max(0, room)
+                block = _rows(block, max(0, room))
+            if len(block):
+                if self._gap_pending:
+                    block.flags[0] |= _GAP_BEFORE     # the block's own list (drivers.iio_source decode_block)
+                self._blocks.append(block)
+                self._blocks_len += len(block)
+                self.stats["handed_over"] += len(block)
+                if self._blocks_len > self.stats["handover_max_backlog"]:
+                    self.stats["handover_max_backlog"] = self._blocks_len
+            self._gap_pending = room < n
+
     # -- the SensorSource interface ------------------------------------------------------------------------------
+
+    def hand_over_by(self, t: float) -> None:
+        """The daemon's next output deadline (daemon.sample_reader, after every poll): a block source's reader
+        hands its block over then. The reader is woken only when it waits for longer."""
+        if self.ready_fd is None:
+            return                   # a per-sample reader hands every sample over as it reads it
+        self._plan.due_s = t
+        if t < self._waiting_until:
+            self._told.set()
 
     def poll(self) -> list[ImuSample]:
         if self._thread is None:
             self.start()
+        if self.ready_fd is not None:
+            try:
+                os.eventfd_read(self.ready_fd)      # taken before the buffer: a block handed over after it wakes
+            except BlockingIOError:                 # the daemon again
+                pass
         with self._lock:
-            out, self._buf = self._buf, []
+            if self._blocks:
+                out, self._blocks, self._blocks_len = _joined(self._blocks), [], 0
+            else:
+                out, self._buf = self._buf, []
             error = self._error
-        if not out and error is not None:
+        if not len(out) and error is not None:
             raise error
-        if out:
-            self._last_delivered = out[-1].counter
+        if len(out):
+            self._last_delivered = out.counter[-1] if type(out) is SampleBlock else out[-1].counter
         return out
 
     def counters(self) -> dict:
@@ -284,16 +394,65 @@ class ThreadedSource(LiveSource):
 
     def close(self) -> None:
         self._stop.set()
+        self._told.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(2.0)
         with self._lock:     # sample indices read (or lost) after the last hand-over: the chip's truth has them
-            if self._buf:
+            if self._blocks:
+                first = self._blocks[0].counter[0] if self._last_delivered is None else self._last_delivered + 1
+                self.stats["undelivered_at_close"] = self._blocks[-1].counter[-1] - first + 1
+            elif self._buf:
                 first = self._buf[0].counter if self._last_delivered is None else self._last_delivered + 1
                 self.stats["undelivered_at_close"] = self._buf[-1].counter - first + 1
         if self._saved_switch_interval is not None:
             sys.setswitchinterval(self._saved_switch_interval)
             self._saved_switch_interval = None
         self.inner.close()
+        # a reader thread that outlived the join may still write it: its number must not go to another file
+        if self.ready_fd is not None and (self._thread is None or not self._thread.is_alive()):
+            os.close(self.ready_fd)
+            self.ready_fd = None
+
+
+def _rows(block: SampleBlock, n: int) -> SampleBlock:
+    """The first n samples of a block of columns."""
+    return SampleBlock(block.t_s[:n], block.vectors[:n], block.temp_c[:n], block.supply_v[:n], block.flags[:n],
+                       block.diag_stat[:n], block.counter[:n])
+
+
+def _joined(blocks: list[SampleBlock]) -> SampleBlock:
+    """Blocks handed over since the daemon's last poll, as one (one in the common case: returned as it is)."""
+    if len(blocks) == 1:
+        return blocks[0]
+    return SampleBlock([t for b in blocks for t in b.t_s], np.concatenate([b.vectors for b in blocks]),
+                       [v for b in blocks for v in b.temp_c], [v for b in blocks for v in b.supply_v],
+                       [v for b in blocks for v in b.flags], [v for b in blocks for v in b.diag_stat],
+                       [v for b in blocks for v in b.counter])
+
+
+class HandoverPlan:
+    """When a block reader reads and hands over (ThreadedSource._read_on_deadlines): at the daemon's next output
+    deadline (`due_s`, told through hand_over_by) unless that one was served already, and at the latest `max_s`
+    after the last hand-over. A deadline is served once: the daemon tells the next one after it took the block
+    (the reader process's `_Handover` rule, drivers.process_source)."""
+
+    def __init__(self, max_s: float):
+        self.max_s = max_s
+        self.due_s = math.inf        # the daemon's next output deadline (CLOCK_MONOTONIC s; inf: none)
+        self.served_s = math.inf     # the deadline the last read was made for
+        self.last_s = -math.inf      # the last read
+
+    def next_read_s(self) -> float:
+        due, latest = self.due_s, self.last_s + self.max_s
+        return due if due != self.served_s and due < latest else latest
+
+    def read_at(self, now: float) -> bool:
+        """A read made at `now`; True when it serves the daemon's deadline (`due_s` reached)."""
+        self.last_s = now
+        if now >= self.due_s != self.served_s:
+            self.served_s = self.due_s
+            return True
+        return False
 
 
 class _Pacing:

@@ -115,6 +115,8 @@ def test_garbage_and_repeated_records_are_no_samples_and_a_reading_beyond_full_s
     assert [s.counter for s in out] == [0, 2, 3, 4]
     saturated = [bool(s.flags & SampleFlags.GYRO_SATURATED and s.flags & SampleFlags.GYRO_INVALID) for s in out]
     assert saturated == [False, False, True, False]
+    other = SampleFlags.ACCEL_SATURATED | SampleFlags.ACCEL_INVALID | SampleFlags.MAG_SATURATED | SampleFlags.MAG_INVALID
+    assert not any(s.flags & other for s in out)              # the gyro's word alone: the other sensors are valid
     c = src.counters()
     assert c["garbage_frames"] == 1 and c["timestamp_backwards"] == 1
 
