@@ -209,12 +209,27 @@ def test_a_calibration_swap_starts_a_file_naming_the_new_calibration(tmp_path):
                               state=StateConfig(str(tmp_path / "state")), log=LogConfig(enabled=True, tlog=False))
     service = Service(cfg, source=TappedSource(open_source(cfg.sensor, clock=time.monotonic)), environ={})
 
+    logs = tmp_path / "state" / "logs"
+
+    async def until(done, what):
+        # conditions, not wall-clock times: on a loaded machine the daemon's start alone can take longer than a
+        # fixed delay, and a swap before the first file opened left one file (seen at load 4.5, 2026-12-07)
+        for _ in range(1200):
+            if done():
+                return
+            await asyncio.sleep(0.05)
+        raise AssertionError(f"60 s without {what}")
+
     async def go():
-        loop = asyncio.get_running_loop()
         cal = Calibration().with_sensor("gyro", GyroModel(np.array([1e-3, 0.0, 0.0]), np.eye(3)), method="test-bias")
-        loop.call_later(1.5, service.apply_calibration, cal)
-        loop.call_later(3.0, service.request_stop, 0)
-        return await service.run(), cal
+        run = asyncio.ensure_future(service.run())
+        await until(lambda: run.done() or len(service.source.samples) >= 800 and any(logs.glob("imu-*.csv.gz.json")),
+                    "the first log file")
+        service.apply_calibration(cal)
+        swapped_at = len(service.source.samples)
+        await until(lambda: run.done() or len(service.source.samples) >= swapped_at + 800, "samples after the swap")
+        service.request_stop(0)
+        return await run, cal
     code, cal = asyncio.run(go())
     assert code == 0
     sidecars = sorted((tmp_path / "state" / "logs").glob("imu-*.csv.gz.json"))
