@@ -135,8 +135,14 @@ def install() -> None:
             self._step = _timed("per-sample path: estimator step", self._step)
     Pipeline.estimator = Pipeline.estimator.setter(timed_estimator)
     add = SampleListeners.add
-    SampleListeners.add = lambda self, fn, **kw: add(self, _timed("per-sample path: listener " + _callback_name(fn),
-                                                                  fn), **kw)
+
+    def timed_add(self, fn, **kw):
+        runs = kw.get("runs")
+        if runs is not None:                           # its run form (items = the run's samples)
+            kw["runs"] = (_timed("per-sample path: run listener " + _callback_name(runs[0]), runs[0],
+                                 items=lambda a: len(a[0])), runs[1])
+        return add(self, _timed("per-sample path: listener " + _callback_name(fn), fn), **kw)
+    SampleListeners.add = timed_add
     for spec in OUTPUTS:
         object.__setattr__(spec, "build", _timed("outputs: build " + spec.config_key[:-3], spec.build))
     OutputSchedule.due = _timed("outputs: schedule due", OutputSchedule.due)
