@@ -18,6 +18,8 @@ from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.sample_reader import LATE_AFTER_S, ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.drivers.process_source import _RECORD, pack, unpack_block
 
+from support.sample_sequence import counted_one_by_one, sequence
+
 RATE_HZ = 819.2
 F = SampleFlags
 
@@ -253,49 +255,8 @@ def test_samples_already_built_take_the_same_one_path():
 
 
 # --- the counts, samples, late samples and listeners must not depend on how a sequence is cut into blocks
-# (worked out here one sample at a time): what any block-wise rewrite of the path must keep (docs/daemon.md
+# (worked out one sample at a time: tests/support/sample_sequence.py): what any block-wise rewrite of the path must keep (docs/daemon.md
 # "Performance", session 25)
-
-
-def _sequence() -> list[ImuSample]:
-    """A recorded-like sequence: 60 samples with lost ones (counter jumps flagged GAP_BEFORE, one at a block's
-    first row and one in a block of its own), each invalid flag alone in a block, the chip's other flags
-    (ALARM with a DIAG_STAT, STALE, saturation, the burst bug recovered), and clean stretches between."""
-    rng = np.random.default_rng(4)
-    flags = [SampleFlags.NEW_DATA] * 60
-    jumps = {8: 3, 21: 1, 40: 7}                 # index: samples lost before it
-    for k in jumps:
-        flags[k] |= F.GAP_BEFORE
-    flags[13] |= F.MAG_INVALID
-    flags[26] |= F.ACCEL_INVALID
-    flags[33] |= F.GYRO_INVALID
-    flags[47] |= F.GYRO_INVALID | F.ACCEL_INVALID | F.MAG_INVALID | F.GAP_BEFORE
-    jumps[47] = 2
-    flags[15] = F.STALE
-    flags[17] |= F.ALARM
-    flags[30] |= F.GYRO_SATURATED | F.BURST_BUG_RECOVERED
-    out, counter = [], 1000
-    for k, f in enumerate(flags):
-        counter += 1 + jumps.get(k, 0)
-        out.append(ImuSample(50.0 + counter / RATE_HZ, rng.normal(0, 0.5, 3), rng.normal([0, 0, -9.8], 1.0),
-                             rng.normal([20, 0, 40], 3.0), 25.0 + 0.01 * k, 5.0 - 1e-3 * k, f,
-                             0x40 if f & F.ALARM else 0, counter))
-    return out
-
-
-def _counted_one_by_one(samples: list[ImuSample]) -> tuple[int, int, int, int]:
-    """(samples, gaps, lost, invalid) by the rules of PipelineCounters, one sample at a time."""
-    gaps = lost = invalid = 0
-    last = None
-    for s in samples:
-        if s.flags & F.GAP_BEFORE:
-            gaps += 1
-            if last is not None and s.counter > last + 1:
-                lost += s.counter - last - 1
-        if s.flags & (F.GYRO_INVALID | F.ACCEL_INVALID | F.MAG_INVALID):
-            invalid += 1
-        last = s.counter
-    return len(samples), gaps, lost, invalid
 
 
 def _cuts(n: int, seed: int) -> list[tuple[int, int]]:
@@ -309,8 +270,8 @@ def _cuts(n: int, seed: int) -> list[tuple[int, int]]:
 
 
 def test_the_counts_are_those_of_one_sample_at_a_time_however_the_blocks_are_cut():
-    samples = _sequence()
-    want = _counted_one_by_one(samples)
+    samples = sequence()
+    want = counted_one_by_one(samples)
     assert want == (60, 4, 13, 4)                            # the sequence's own figures (3 + 1 + 7 + 2 lost)
     for cuts in [[(k, k + 1) for k in range(60)], [(k, k + 4) for k in range(0, 60, 4)]] + \
             [_cuts(60, seed) for seed in range(8)]:
@@ -323,7 +284,7 @@ def test_the_counts_are_those_of_one_sample_at_a_time_however_the_blocks_are_cut
             done = hi
             c = pipeline.counters
             # after every block, the counts of its samples so far
-            assert (c.samples, c.gaps, c.lost_samples, c.invalid_samples) == _counted_one_by_one(samples[:done])
+            assert (c.samples, c.gaps, c.lost_samples, c.invalid_samples) == counted_one_by_one(samples[:done])
         # the estimator saw every sample as the source gave it (identity calibration), each flag as it was
         assert len(est.seen) == 60
         for got, want_s in zip(est.seen, samples):
@@ -336,7 +297,7 @@ def test_the_counts_are_those_of_one_sample_at_a_time_however_the_blocks_are_cut
 
 
 def test_late_samples_and_the_last_flags_follow_the_block_sample_by_sample():
-    samples = _sequence()
+    samples = sequence()
     pipeline = Pipeline(_StubEstimator(), Calibration.identity())
     reader = _reader(pipeline)
     late = 0
@@ -352,7 +313,7 @@ def test_unpacked_columns_are_the_records_fields():
     """Every field of every record, read independently through the record dtype, whatever the values (negative
     and large integers, NaN temperatures)."""
     samples = [dataclasses.replace(s, diag_stat=d, counter=c, temp_c=t)
-               for s, d, c, t in zip(_sequence()[:5], (0, -1, 2 ** 40, 7, 0x8000),
+               for s, d, c, t in zip(sequence()[:5], (0, -1, 2 ** 40, 7, 0x8000),
                                      (3, 2 ** 62, -5, 0, 11), (float("nan"), -40.0, 85.0, 0.0, 1e-300))]
     data = pack(samples)
     rec = np.frombuffer(data, dtype=_RECORD)
@@ -388,6 +349,6 @@ def test_a_listener_added_or_dropped_by_a_listener_takes_effect_from_the_next_sa
 
     reader.listeners.add(a, in_place=True)
     reader.listeners.add(b)
-    samples = [dataclasses.replace(s, flags=F.NEW_DATA) for s in _sequence()[:8]]    # counters 1001..1008
+    samples = [dataclasses.replace(s, flags=F.NEW_DATA) for s in sequence()[:8]]    # counters 1001..1008
     reader.process(unpack_block(pack(samples)), samples[-1].t_s)
     assert seen == {"a": list(range(1001, 1009)), "b": [1001, 1002, 1003], "c": list(range(1004, 1009))}

@@ -13,7 +13,7 @@ import pytest
 
 from ahrsd.calibration.models import Calibration
 from ahrsd.core.estimate import EstimateFlags
-from ahrsd.core.sample import ImuSample, SampleFlags
+from ahrsd.core.sample import ImuSample
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.magcal import FieldCalibrationPart, MagCalProtocol, _kept_vectors
@@ -25,9 +25,8 @@ from ahrsd.estimator.base import BlockSteppingEstimator
 from ahrsd.estimator.filter_output import estimate_flags
 
 from support.magcal_host import Clock, FakeHost
+from support.sample_sequence import counted_one_by_one, sequence
 
-RATE_HZ = 819.2
-F = SampleFlags
 REINIT = int(EstimateFlags.REINITIALISED)
 WINDOW_S = 0.02                    # the field calibration's fixed-yaw window: ~16 samples of the 60
 
@@ -93,42 +92,6 @@ class _RunEstimator:
         return bits, self.view
 
 
-def _sequence() -> list[ImuSample]:
-    """60 samples: lost ones (counter jumps flagged GAP_BEFORE), invalid ones, other chip flags, clean between."""
-    rng = np.random.default_rng(4)
-    flags = [F.NEW_DATA] * 60
-    jumps = {8: 3, 21: 1, 40: 7, 47: 2}
-    for k in jumps:
-        flags[k] |= F.GAP_BEFORE
-    flags[13] |= F.MAG_INVALID
-    flags[26] |= F.ACCEL_INVALID
-    flags[33] |= F.GYRO_INVALID
-    flags[47] |= F.GYRO_INVALID | F.ACCEL_INVALID | F.MAG_INVALID
-    flags[17] |= F.ALARM
-    out, counter = [], 1000
-    for k, f in enumerate(flags):
-        counter += 1 + jumps.get(k, 0)
-        out.append(ImuSample(50.0 + counter / RATE_HZ, rng.normal(0, 0.5, 3), rng.normal([0, 0, -9.8], 1.0),
-                             rng.normal([20, 0, 40], 3.0), 25.0 + 0.01 * k, 5.0 - 1e-3 * k, f,
-                             0x40 if f & F.ALARM else 0, counter))
-    return out
-
-
-def _counted_one_by_one(samples) -> tuple[int, int, int, int]:
-    """(samples, gaps, lost, invalid) by PipelineCounters' rules, one sample at a time."""
-    gaps = lost = invalid = 0
-    last = None
-    for s in samples:
-        if s.flags & F.GAP_BEFORE:
-            gaps += 1
-            if last is not None and s.counter > last + 1:
-                lost += s.counter - last - 1
-        if s.flags & (F.GYRO_INVALID | F.ACCEL_INVALID | F.MAG_INVALID):
-            invalid += 1
-        last = s.counter
-    return len(samples), gaps, lost, invalid
-
-
 def _run(samples, cuts, reinit_at, tmp_path, takes_runs: bool):
     est = _RunEstimator(reinit_at)
     est.t_to_counter = {float(s.t_s): s.counter for s in samples}
@@ -174,7 +137,7 @@ def _cuts(n: int, seed: int) -> list[tuple[int, int]]:
 
 @pytest.mark.parametrize("seed", range(6))
 def test_whole_runs_count_keep_and_hand_on_what_the_sample_by_sample_path_does(seed, tmp_path):
-    samples = _sequence()
+    samples = sequence()
     reinit_at = {samples[k].counter for k in (5, 29, 44)}      # inside runs as often as not
     cuts = _cuts(len(samples), seed)
     runs, kept, proto, est, pipeline = _run(samples, cuts, reinit_at, tmp_path / "a", takes_runs=True)
@@ -187,10 +150,10 @@ def test_whole_runs_count_keep_and_hand_on_what_the_sample_by_sample_path_does(s
     assert est.seen == est_alone.seen and len(est.seen) == 60
     # truth one sample at a time: the counts after every block
     for (lo, hi), (_, counts, last, *_) in zip(cuts, runs):
-        assert counts == _counted_one_by_one(samples[:hi])
+        assert counts == counted_one_by_one(samples[:hi])
         want = samples[hi - 1]
         assert (last[0], last[-1], last[6]) == (want.t_s, want.counter, want.flags)
-    assert _counted_one_by_one(samples) == (60, 4, 13, 4)
+    assert counted_one_by_one(samples) == (60, 4, 13, 4)
     # a re-initialisation signalled once for each block that holds one, wherever in the block it is
     blocks_with_reinit = sum(1 for lo, hi in cuts if any(s.counter in reinit_at for s in samples[lo:hi]))
     assert runs[-1][-1] == blocks_with_reinit == 3
