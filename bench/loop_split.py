@@ -19,7 +19,10 @@ Timed parts (names in the output):
   pipe and the unpacking), `per-sample path` (SampleReader.process; items = samples), `outputs`
   (Publishers.publish), `endpoint send` (Endpoint.send; items = messages sent), `GNSS fix` (GnssTask.deliver),
   `ins GNSS update` (the aided estimator's update_gnss), `hand-over deadline` (ProcessSource.hand_over_by with
-  the next-due computation); `per-sample path: late samples counted`
+  the next-due computation), `last estimate (snapshot built at the first ask)` (Pipeline.last_estimate: the
+  outputs ask first after a block, and ins builds its AttitudeEstimate then), `per-sample path: listener <name>`
+  (a sample listener; items = samples) and `per-sample path: run listener <name>` (a listener's run form,
+  daemon.sample_reader.SampleListeners `runs=`; items = the run's samples); `per-sample path: late samples counted`
   (items = samples used LATE_AFTER_S or more after they were ready, daemon.sample_reader; its CPU is not timed);
   `gc generation N`: the garbage collector's collections (items = objects collected),
   in whichever thread allocated.
@@ -161,6 +164,10 @@ def install() -> None:
         late[2] += self.counters.late_samples - before
     SampleReader._count_late = counted_late
     Publishers.publish = _timed("outputs", Publishers.publish)
+    # the latest estimate asked for (the outputs first, housekeeping too): ins builds its snapshot at the first ask
+    # after a block (estimator/estimate_view.py), the outputs' largest part
+    Pipeline.last_estimate = property(_timed("last estimate (snapshot built at the first ask)",
+                                             Pipeline.last_estimate.fget))
     Publishers.next_due = _timed("next output due", Publishers.next_due)
     Endpoint.send = _timed("endpoint send", Endpoint.send, items=lambda a: 1)
     GnssTask.deliver = _timed("GNSS fix", GnssTask.deliver)
