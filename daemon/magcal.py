@@ -223,13 +223,13 @@ class MagCalProtocol:
             s.add_sample(sample, sensor_attitude(estimate, mounting), now_s=self.clock())
             self._submit_requested_fit(s)
 
-    def on_run(self, t_s, rows: np.ndarray, estimate, mag_model) -> None:
-        """`on_sample` for a run of samples while no session runs and without a mounting (the daemon's sample reader
-        takes whole runs then: daemon.sample_reader.SampleListeners): t_s their times, rows their calibrated (n, 9)
-        rows (gyro, accel, mag; the sensor frame, there being no mounting), `estimate` the in-place estimate at the
-        last. What `on_sample` keeps of each sample, kept the same, in order."""
+    def on_run(self, t_s, rows: np.ndarray, estimate, mag_model, mounting: np.ndarray | None = None) -> None:
+        """`on_sample` for a run of samples while no session runs (the daemon's sample reader takes whole runs then:
+        daemon.sample_reader.SampleListeners): t_s their times, rows their calibrated (n, 9) rows in the SENSOR frame
+        (gyro, accel, mag), `estimate` the in-place estimate at the last, `mounting` as `on_sample`'s. What
+        `on_sample` keeps of each sample, kept the same, in order."""
         self._last_estimate = estimate
-        self._mounting = None
+        self._mounting = mounting
         q = self._recent_raw
         window_s = self.settings.fixed_yaw_average_s
         now = t_s[-1]
@@ -733,14 +733,18 @@ class FieldCalibrationPart:
         return not self.protocol.calibrating
 
     def takes_runs(self) -> bool:
-        """The listener takes a run of samples in one call (`on_run`) now: no session runs and the pipeline has no
-        mounting (the run's calibrated rows are then the sensor frame the protocol keeps)."""
-        return self.host.pipeline.mounting is None and not self.protocol.calibrating
+        """The listener takes a run of samples in one call (`on_run`) now: while no session runs (when it lets the
+        estimator step ahead)."""
+        return self.steps_ahead()
 
     def on_run(self, t_s, rows, estimate) -> None:
-        """`on_sample` for a run of samples (daemon.sample_reader.SampleListeners `runs=`, while `takes_runs`)."""
+        """`on_sample` for a run of samples (daemon.sample_reader.SampleListeners `runs=`, while `takes_runs`): the
+        run's rows in the sensor frame (the pipeline's body-frame rows without a mounting, else its sensor-frame
+        rows of the run, each the sample `last_sensor_sample` gives)."""
         pipeline = self.host.pipeline
-        self.protocol.on_run(t_s, rows, estimate, pipeline.calibration.mag)
+        mounting = pipeline.mounting
+        self.protocol.on_run(t_s, rows if mounting is None else pipeline.run_sensor_rows(), estimate,
+                             pipeline.calibration.mag, mounting)
         if self._tick_handle is None:
             self._tick_handle = asyncio.get_running_loop().call_soon(self._tick_and_rearm)
 

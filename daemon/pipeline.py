@@ -76,6 +76,7 @@ class Pipeline:
         # its calibrated body-frame rows; None when the estimate yielded is one sample's
         self.run: tuple[int, int, list] | None = None
         self.run_rows: np.ndarray | None = None
+        self._run_block: tuple | None = None     # (block, first, stop, calibration) of that run
 
     @property
     def estimator(self):
@@ -108,6 +109,15 @@ class Pipeline:
                 self._sensor_sample = ImuSample(raw.t_s, r[0:3], r[3:6], r[6:9], raw.temp_c, raw.supply_v, raw.flags,
                                                raw.diag_stat, raw.counter)
         return self._sensor_sample
+
+    def run_sensor_rows(self) -> np.ndarray:
+        """The run just yielded (`process_block(whole_runs=True)`) calibrated but still in the sensor frame (before
+        the mounting): (n, 9) rows, each bit for bit the vectors `last_sensor_sample` gives for its sample."""
+        block, first, stop, cal = self._run_block
+        raw9 = block.vectors[first:stop]
+        if cal.is_identity:
+            return raw9
+        return _calibrated_rows(raw9, cal, None, row_by_row=True)
 
     @property
     def last_raw_sample(self) -> ImuSample | None:
@@ -220,6 +230,7 @@ class Pipeline:
         does at each of them, at once — counted (a flagged one as the loop counts it, against the counter before
         it), the last one the last sample (its calibrated ImuSample built)."""
         self.run_rows = rows
+        self._run_block = (block, i, stop, cal)
         if stop - i < 2:
             return
         raw_flags, counter, t_s = block.flags, block.counter, block.t_s
@@ -288,8 +299,10 @@ def block_map(cal, m: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
 _BLOCK_MAPS: dict = {}          # (calibration, mounting) ids → their (Kᵀ, o): swaps are rare, blocks 200 a second
 
 
-def _calibrated_rows(raw9: np.ndarray, cal, m: np.ndarray | None) -> np.ndarray:
-    """The calibrated, body-frame (n, 9) rows of raw (n, 9) rows."""
+def _calibrated_rows(raw9: np.ndarray, cal, m: np.ndarray | None, row_by_row: bool = False) -> np.ndarray:
+    """The calibrated, body-frame (n, 9) rows of raw (n, 9) rows. `row_by_row`: each row's product made as a one-row
+    product, stacked ((n, 1, 9) · (9, 9): numpy's matmul runs its one-row loop for each), so a row is bit for bit
+    what the rows one at a time give; the (n, 9) product takes another BLAS kernel, whose last bits differ."""
     if cal.is_identity and m is None:
         return raw9
     key = (id(cal), id(m))
@@ -305,6 +318,9 @@ def _calibrated_rows(raw9: np.ndarray, cal, m: np.ndarray | None) -> np.ndarray:
         raw9 = raw9.copy()
         a = raw9[:, 3:6]
         a -= q * a * a                                   # f − q∘f² (AccelModel), before the matrix
-    out = raw9 @ entry[2]                                # rows: (K · raw9)ᵀ = raw9ᵀ · Kᵀ
+    if row_by_row:
+        out = (raw9[:, None, :] @ entry[2])[:, 0, :]
+    else:
+        out = raw9 @ entry[2]                            # rows: (K · raw9)ᵀ = raw9ᵀ · Kᵀ
     out -= entry[3]
     return out

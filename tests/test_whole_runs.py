@@ -11,14 +11,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ahrsd.calibration.models import Calibration
+from ahrsd.calibration.models import AccelModel, Calibration, GyroModel, MagModel
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import ImuSample
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.magcal import FieldCalibrationPart, MagCalProtocol, _kept_vectors
 from ahrsd.daemon.magcal_settings import MagCalSettings
-from ahrsd.daemon.pipeline import Pipeline
+from ahrsd.daemon.pipeline import Pipeline, _calibrated_rows
 from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.drivers.process_source import pack, unpack_block
 from ahrsd.estimator.base import BlockSteppingEstimator
@@ -92,11 +92,29 @@ class _RunEstimator:
         return bits, self.view
 
 
-def _run(samples, cuts, reinit_at, tmp_path, takes_runs: bool):
+def _cal(seed: int) -> Calibration:
+    """A calibration with every term (the accelerometer's quadratic one too): its rows are a product's."""
+    rng = np.random.default_rng(seed)
+    return Calibration(GyroModel(rng.normal(0, 0.01, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3))),
+                       AccelModel(rng.normal(0, 0.1, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3)),
+                                  rng.normal(0, 1e-3, 3)),
+                       MagModel(rng.normal(0, 5, 3), np.eye(3) + rng.normal(0, 0.05, (3, 3))))
+
+
+def _sensor_frame_by_hand(cal: Calibration, s: ImuSample) -> tuple:
+    """The models' formulas (calibration/models.py docstrings), one vector at a time: no mounting."""
+    g, a, m = cal.gyro, cal.accel, cal.mag
+    return (g.matrix @ (s.gyro_rad_s - g.bias_rad_s),
+            a.matrix @ (s.accel_m_s2 - a.bias_m_s2 - a.quadratic * s.accel_m_s2 ** 2),
+            m.soft_iron @ (s.mag_ut - m.hard_iron_ut))
+
+
+def _run(samples, cuts, reinit_at, tmp_path, takes_runs: bool, cal=None, rpy=(0.0, 0.0, 0.0)):
     est = _RunEstimator(reinit_at)
     est.t_to_counter = {float(s.t_s): s.counter for s in samples}
     assert isinstance(est, BlockSteppingEstimator)
-    pipeline = Pipeline(est, Calibration.identity())
+    pipeline = Pipeline(est, Calibration.identity() if cal is None else cal)
+    pipeline.set_mounting(rpy)
     resets = []
     reader = SampleReader(None, pipeline, Health(stale_timeout_s=0.1), ServiceCounters(), SampleListeners(),
                           ReaderOutputs(publish=lambda now: None, statustext=lambda sev, text: None,
@@ -135,17 +153,22 @@ def _cuts(n: int, seed: int) -> list[tuple[int, int]]:
     return out
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_whole_runs_count_keep_and_hand_on_what_the_sample_by_sample_path_does(seed, tmp_path):
+@pytest.mark.parametrize("seed, calibrated, rpy", [(0, False, (0.0, 0.0, 0.0)), (1, False, (0.0, 0.0, 90.0)),
+                                                   (2, True, (0.0, 0.0, 0.0)), (3, True, (10.0, -5.0, 90.0)),
+                                                   (4, True, (0.0, 0.0, 0.01)), (5, False, (0.0, 0.0, 0.0))])
+def test_whole_runs_count_keep_and_hand_on_what_the_sample_by_sample_path_does(seed, calibrated, rpy, tmp_path):
     samples = sequence()
     reinit_at = {samples[k].counter for k in (5, 29, 44)}      # inside runs as often as not
     cuts = _cuts(len(samples), seed)
-    runs, kept, proto, est, pipeline = _run(samples, cuts, reinit_at, tmp_path / "a", takes_runs=True)
-    alone, kept_alone, proto_alone, est_alone, _ = _run(samples, cuts, reinit_at, tmp_path / "b", takes_runs=False)
+    cal = _cal(seed) if calibrated else None
+    runs, kept, proto, est, pipeline = _run(samples, cuts, reinit_at, tmp_path / "a", True, cal, rpy)
+    alone, kept_alone, proto_alone, est_alone, _ = _run(samples, cuts, reinit_at, tmp_path / "b", False, cal, rpy)
     assert all(whole for whole, *_ in runs) and not any(whole for whole, *_ in alone)
     assert runs == [(True, *rest) for _, *rest in alone]
+    # what the field calibration keeps, bit for bit the per-sample path's (a mounted one's sensor-frame rows too)
     assert kept == kept_alone
-    assert (proto._last_sample_t, proto._mounting) == (proto_alone._last_sample_t, None)
+    assert proto._last_sample_t == proto_alone._last_sample_t
+    assert (proto._mounting is None) == (rpy == (0.0, 0.0, 0.0)) and proto._mounting is pipeline.mounting
     assert proto._last_estimate is est.view
     assert est.seen == est_alone.seen and len(est.seen) == 60
     # truth one sample at a time: the counts after every block
@@ -158,11 +181,16 @@ def test_whole_runs_count_keep_and_hand_on_what_the_sample_by_sample_path_does(s
     blocks_with_reinit = sum(1 for lo, hi in cuts if any(s.counter in reinit_at for s in samples[lo:hi]))
     assert runs[-1][-1] == blocks_with_reinit == 3
     # the field calibration keeps the samples within its window of the last one, in order, each with the model
-    # in force (identity calibration: the rows are the samples as given)
+    # in force, calibrated in the SENSOR frame whatever the mounting (identity calibration: the samples as given)
     t_last = samples[-1].t_s
-    want_kept = [(s.t_s, s.gyro_rad_s.tobytes(), s.accel_m_s2.tobytes(), s.mag_ut.tobytes())
-                 for s in samples if not t_last - s.t_s > WINDOW_S]
-    assert [k[:4] for k in kept] == want_kept and 10 < len(want_kept) < 30
+    want = [s for s in samples if not t_last - s.t_s > WINDOW_S]
+    assert [k[0] for k in kept] == [s.t_s for s in want] and 10 < len(want) < 30
+    for k, s in zip(kept, want):
+        if cal is None:
+            assert k[1:4] == (s.gyro_rad_s.tobytes(), s.accel_m_s2.tobytes(), s.mag_ut.tobytes())
+        else:
+            for got, by_hand in zip(k[1:4], _sensor_frame_by_hand(cal, s)):
+                np.testing.assert_allclose(np.frombuffer(got), by_hand, rtol=0, atol=1e-9)
     assert all(k[4] is pipeline.calibration.mag for k in kept)
 
 
@@ -173,7 +201,7 @@ def test_the_reader_takes_runs_only_while_every_listener_takes_them_and_steps_ah
     drop = listeners.add(lambda s, e: None, in_place=True, steps_ahead=lambda: ahead[0],
                          runs=(lambda t, r, e: None, lambda: takes[0]))
     assert listeners.take_runs()
-    takes[0] = False                                      # e.g. a mounting: the field calibration's sensor frame
+    takes[0] = False                                      # e.g. its session started
     assert not listeners.take_runs() and listeners.allow_steps_ahead()
     takes[0], ahead[0] = True, False                      # a session started
     assert not listeners.take_runs()
@@ -186,17 +214,35 @@ def test_the_reader_takes_runs_only_while_every_listener_takes_them_and_steps_ah
     assert listeners.runs == {}
 
 
-def test_the_field_calibration_takes_runs_only_without_a_mounting_and_a_session(tmp_path):
+def test_the_field_calibration_takes_runs_only_while_no_session_runs(tmp_path):
     pipeline = Pipeline(_RunEstimator(set()), Calibration.identity())
     part = FieldCalibrationPart.__new__(FieldCalibrationPart)
     part.host = SimpleNamespace(pipeline=pipeline)
     part.protocol = SimpleNamespace(calibrating=False)
     assert part.takes_runs()
-    pipeline.set_mounting([0.0, 0.0, 90.0])               # its rows would be the body frame, not the sensor's
+    pipeline.set_mounting([0.0, 0.0, 90.0])               # its sensor-frame rows: the pipeline's run_sensor_rows
+    assert part.takes_runs()
+    part.protocol.calibrating = True                     # a session gets every sample's own estimate
     assert not part.takes_runs()
-    pipeline.set_mounting([0.0, 0.0, 0.0])
-    part.protocol.calibrating = True
-    assert not part.takes_runs()
+
+
+def test_a_runs_sensor_frame_rows_are_the_one_row_products_bit_for_bit():
+    """Pipeline.run_sensor_rows against last_sensor_sample at each sample of the run (its one-row product):
+    equal bytes (the (n, 9) product in one call takes another BLAS kernel, whose last bits differ here)."""
+    samples = sequence()[:24]
+    cal = _cal(9)
+    pipeline = Pipeline(_RunEstimator(set()), cal)
+    pipeline.set_mounting([0.0, 0.0, 90.0])
+    block = unpack_block(pack(samples))
+    pipeline._run_block = (block, 3, 20, cal)
+    rows = pipeline.run_sensor_rows()
+    one_by_one = []
+    for j in range(3, 20):
+        pipeline._sensor, pipeline._sensor_sample = (block, j, cal), None
+        s = pipeline.last_sensor_sample
+        one_by_one.append(np.concatenate((s.gyro_rad_s, s.accel_m_s2, s.mag_ut)).tobytes())
+    assert [r.tobytes() for r in rows] == one_by_one
+    np.testing.assert_allclose(_calibrated_rows(block.vectors[3:20], cal, None), rows, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("times", [

@@ -1135,9 +1135,15 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("loopcpu-run-needs-every-listener", "the reader takes whole runs only when every listener has a run form",
              "daemon/sample_reader.py", "            if run is None or not run[1]():",
              "            if run is not None and not run[1]():", ("tests/test_whole_runs.py",)),
-    Mutation("loopcpu-run-no-mounting", "the field calibration takes runs only without a mounting",
-             "daemon/magcal.py", "return self.host.pipeline.mounting is None and not self.protocol.calibrating",
-             "return not self.protocol.calibrating", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-mounted-sensor-frame", "a mounted install's field calibration keeps a run's rows in the "
+             "sensor frame", "daemon/magcal.py",
+             "self.protocol.on_run(t_s, rows if mounting is None else pipeline.run_sensor_rows(), estimate,",
+             "self.protocol.on_run(t_s, rows, estimate,", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-sensor-rows-one-by-one", "a run's sensor-frame rows are the one-row products, bit for bit",
+             "daemon/pipeline.py", "return _calibrated_rows(raw9, cal, None, row_by_row=True)",
+             "return _calibrated_rows(raw9, cal, None)", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-no-session", "the field calibration takes runs only while no session runs",
+             "daemon/magcal.py", "        return self.steps_ahead()", "        return True", ("tests/test_whole_runs.py",)),
     # ------------------------------------------------------------------ session 40 (blk)
     Mutation("blk-fix-due-sample-alone", "a run of samples stops before the sample a queued fix falls due at (stepped "
              "alone, the fix fused after it)", "estimator/ins_step_block.py", "        if t >= stop_t_s:",
