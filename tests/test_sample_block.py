@@ -8,7 +8,7 @@ import dataclasses
 
 import numpy as np
 
-from ahrsd.calibration.models import AccelModel, Calibration, GyroModel, MagModel
+from ahrsd.calibration.models import Calibration
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.core.sample_block import SampleBlock
@@ -18,7 +18,8 @@ from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.sample_reader import LATE_AFTER_S, ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.drivers.process_source import _RECORD, pack, unpack_block
 
-from support.sample_sequence import counted_one_by_one, sequence
+from support.sample_sequence import calibration, counted_one_by_one, sequence
+from support.sample_sequence import cuts as block_cuts
 
 RATE_HZ = 819.2
 F = SampleFlags
@@ -35,14 +36,6 @@ class _StubEstimator:
     def update(self, sample):
         self.seen.append(sample)
         return _Est()
-
-
-def _cal(seed=1) -> Calibration:
-    rng = np.random.default_rng(seed)
-    return Calibration(GyroModel(rng.normal(0, 0.01, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3))),
-                       AccelModel(rng.normal(0, 0.1, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3)),
-                                  rng.normal(0, 1e-3, 3)),
-                       MagModel(rng.normal(0, 5, 3), np.eye(3) + rng.normal(0, 0.05, (3, 3))))
 
 
 def _by_hand(cal: Calibration, raw: ImuSample, mounting=None):
@@ -95,7 +88,7 @@ def test_a_gap_in_the_middle_of_a_block_counts_exactly_that_gap():
 
 
 def test_every_sample_of_a_block_reaches_the_estimator_and_the_listeners_calibrated_and_mounted():
-    cal = _cal()
+    cal = calibration()
     est = _StubEstimator()
     pipeline = Pipeline(est, cal)
     pipeline.set_mounting([0.0, 0.0, 90.0])
@@ -117,7 +110,7 @@ def test_every_sample_of_a_block_reaches_the_estimator_and_the_listeners_calibra
 
 
 def test_a_calibration_swapped_by_a_listener_mid_block_applies_from_the_next_sample():
-    old, new = _cal(1), _cal(7)
+    old, new = calibration(1), calibration(7)
     pipeline = Pipeline(_StubEstimator(), old)
     reader = _reader(pipeline)
     seen = []
@@ -145,7 +138,7 @@ def test_the_field_calibration_gets_each_sample_in_the_sensor_frame_with_the_mag
     from ahrsd.daemon.magcal import FieldCalibrationPart
 
     for rpy in ([0.0, 0.0, 0.0], [0.0, 0.0, 90.0]):
-        old, new = _cal(1), _cal(7)
+        old, new = calibration(1), calibration(7)
         pipeline = Pipeline(_StubEstimator(), old)
         pipeline.set_mounting(rpy)
         given = []
@@ -198,7 +191,7 @@ def test_a_sample_the_stepping_estimator_rejects_is_counted_and_resets_it_and_th
 
     est = Stepping()
     assert isinstance(est, SteppingEstimator)
-    pipeline = Pipeline(est, _cal())
+    pipeline = Pipeline(est, calibration())
     given = list(pipeline.process_block(unpack_block(pack(_raw(range(6))))))
     assert [g is None for g in given] == [False, False, False, True, False, False]
     assert est.stepped == [0, 1, 2, 4, 5] and est.resets == 1 and pipeline.counters.estimator_errors == 1
@@ -207,7 +200,7 @@ def test_a_sample_the_stepping_estimator_rejects_is_counted_and_resets_it_and_th
 
 def test_the_vehicle_log_gets_every_raw_sample_of_a_block():
     logged = []
-    pipeline = Pipeline(_StubEstimator(), _cal())
+    pipeline = Pipeline(_StubEstimator(), calibration())
     raw = _raw(range(5))
     _reader(pipeline, raw_sink=logged.append).process(unpack_block(pack(raw)), 100.0)
     assert [s.counter for s in logged] == list(range(5))
@@ -227,7 +220,7 @@ def test_samples_already_built_take_the_same_one_path():
     """A per-sample read or a replay's list (SampleBlock.of): calibrated and mounted as the formulas by hand say,
     the sensor-frame sample too, and the raw samples the vehicle log and a new calibration see are the source's
     own objects (not copies)."""
-    cal = _cal(5)
+    cal = calibration(5)
     est = _StubEstimator()
     pipeline = Pipeline(est, cal)
     pipeline.set_mounting([0.0, 0.0, 90.0])
@@ -259,22 +252,12 @@ def test_samples_already_built_take_the_same_one_path():
 # "Performance", session 25)
 
 
-def _cuts(n: int, seed: int) -> list[tuple[int, int]]:
-    rng = np.random.default_rng(seed)
-    out, k = [], 0
-    while k < n:
-        size = int(rng.integers(1, 8))
-        out.append((k, min(n, k + size)))
-        k += size
-    return out
-
-
 def test_the_counts_are_those_of_one_sample_at_a_time_however_the_blocks_are_cut():
     samples = sequence()
     want = counted_one_by_one(samples)
     assert want == (60, 4, 13, 4)                            # the sequence's own figures (3 + 1 + 7 + 2 lost)
     for cuts in [[(k, k + 1) for k in range(60)], [(k, k + 4) for k in range(0, 60, 4)]] + \
-            [_cuts(60, seed) for seed in range(8)]:
+            [block_cuts(60, seed) for seed in range(8)]:
         est = _StubEstimator()
         pipeline = Pipeline(est, Calibration.identity())
         reader = _reader(pipeline)
@@ -301,7 +284,7 @@ def test_late_samples_and_the_last_flags_follow_the_block_sample_by_sample():
     pipeline = Pipeline(_StubEstimator(), Calibration.identity())
     reader = _reader(pipeline)
     late = 0
-    for lo, hi in _cuts(60, 3):
+    for lo, hi in block_cuts(60, 3):
         now = samples[lo].t_s + LATE_AFTER_S + 1.5 / RATE_HZ      # the block's first two samples are late
         late += sum(1 for s in samples[lo:hi] if s.t_s < now - LATE_AFTER_S)
         reader.process(unpack_block(pack(samples[lo:hi])), now)

@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ahrsd.calibration.models import AccelModel, Calibration, GyroModel, MagModel
+from ahrsd.calibration.models import Calibration
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import ImuSample
 from ahrsd.daemon.counters import ServiceCounters
@@ -25,7 +25,8 @@ from ahrsd.estimator.base import BlockSteppingEstimator
 from ahrsd.estimator.filter_output import estimate_flags
 
 from support.magcal_host import Clock, FakeHost
-from support.sample_sequence import counted_one_by_one, sequence
+from support.sample_sequence import calibration, counted_one_by_one, sequence
+from support.sample_sequence import cuts as block_cuts
 
 REINIT = int(EstimateFlags.REINITIALISED)
 WINDOW_S = 0.02                    # the field calibration's fixed-yaw window: ~16 samples of the 60
@@ -92,15 +93,6 @@ class _RunEstimator:
         return bits, self.view
 
 
-def _cal(seed: int) -> Calibration:
-    """A calibration with every term (the accelerometer's quadratic one too): its rows are a product's."""
-    rng = np.random.default_rng(seed)
-    return Calibration(GyroModel(rng.normal(0, 0.01, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3))),
-                       AccelModel(rng.normal(0, 0.1, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3)),
-                                  rng.normal(0, 1e-3, 3)),
-                       MagModel(rng.normal(0, 5, 3), np.eye(3) + rng.normal(0, 0.05, (3, 3))))
-
-
 def _sensor_frame_by_hand(cal: Calibration, s: ImuSample) -> tuple:
     """The models' formulas (calibration/models.py docstrings), one vector at a time: no mounting."""
     g, a, m = cal.gyro, cal.accel, cal.mag
@@ -143,24 +135,14 @@ def _run(samples, cuts, reinit_at, tmp_path, takes_runs: bool, cal=None, rpy=(0.
     return after_blocks, kept, proto, est, pipeline
 
 
-def _cuts(n: int, seed: int) -> list[tuple[int, int]]:
-    rng = np.random.default_rng(seed)
-    out, k = [], 0
-    while k < n:
-        size = int(rng.integers(1, 16))
-        out.append((k, min(n, k + size)))
-        k += size
-    return out
-
-
 @pytest.mark.parametrize("seed, calibrated, rpy", [(0, False, (0.0, 0.0, 0.0)), (1, False, (0.0, 0.0, 90.0)),
                                                    (2, True, (0.0, 0.0, 0.0)), (3, True, (10.0, -5.0, 90.0)),
                                                    (4, True, (0.0, 0.0, 0.01)), (5, False, (0.0, 0.0, 0.0))])
 def test_whole_runs_count_keep_and_hand_on_what_the_sample_by_sample_path_does(seed, calibrated, rpy, tmp_path):
     samples = sequence()
     reinit_at = {samples[k].counter for k in (5, 29, 44)}      # inside runs as often as not
-    cuts = _cuts(len(samples), seed)
-    cal = _cal(seed) if calibrated else None
+    cuts = block_cuts(len(samples), seed, max_size=15)
+    cal = calibration(seed) if calibrated else None
     runs, kept, proto, est, pipeline = _run(samples, cuts, reinit_at, tmp_path / "a", True, cal, rpy)
     alone, kept_alone, proto_alone, est_alone, _ = _run(samples, cuts, reinit_at, tmp_path / "b", False, cal, rpy)
     assert all(whole for whole, *_ in runs) and not any(whole for whole, *_ in alone)
@@ -230,7 +212,7 @@ def test_a_runs_sensor_frame_rows_are_the_one_row_products_bit_for_bit():
     """Pipeline.run_sensor_rows against last_sensor_sample at each sample of the run (its one-row product):
     equal bytes (the (n, 9) product in one call takes another BLAS kernel, whose last bits differ here)."""
     samples = sequence()[:24]
-    cal = _cal(9)
+    cal = calibration(9)
     pipeline = Pipeline(_RunEstimator(set()), cal)
     pipeline.set_mounting([0.0, 0.0, 90.0])
     block = unpack_block(pack(samples))

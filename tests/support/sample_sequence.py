@@ -1,11 +1,13 @@
-"""A recorded-like sequence of samples with lost ones, invalid axes and the chip's other flags, and its counts worked
-out one sample at a time by PipelineCounters' rules (daemon.pipeline): the truth the block-wise reader paths are
-held to (tests/test_sample_block.py, tests/test_whole_runs.py)."""
+"""A recorded-like sequence of samples with lost ones, invalid axes and the chip's other flags, its counts worked
+out one sample at a time by PipelineCounters' rules (daemon.pipeline), the ways to cut it into blocks and a
+calibration with every term: what the block-wise reader paths are held to (tests/test_sample_block.py,
+tests/test_whole_runs.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from ahrsd.calibration.models import AccelModel, Calibration, GyroModel, MagModel
 from ahrsd.core.sample import ImuSample, SampleFlags
 
 RATE_HZ = 819.2
@@ -51,3 +53,23 @@ def counted_one_by_one(samples: list[ImuSample]) -> tuple[int, int, int, int]:
             invalid += 1
         last = s.counter
     return len(samples), gaps, lost, invalid
+
+
+def cuts(n: int, seed: int, max_size: int = 7) -> list[tuple[int, int]]:
+    """(lo, hi) blocks of 1 to `max_size` samples covering 0 … n, drawn."""
+    rng = np.random.default_rng(seed)
+    out, k = [], 0
+    while k < n:
+        size = int(rng.integers(1, max_size + 1))
+        out.append((k, min(n, k + size)))
+        k += size
+    return out
+
+
+def calibration(seed: int = 1) -> Calibration:
+    """A calibration with every term (the accelerometer's quadratic one too): its rows are a product's."""
+    rng = np.random.default_rng(seed)
+    return Calibration(GyroModel(rng.normal(0, 0.01, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3))),
+                       AccelModel(rng.normal(0, 0.1, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3)),
+                                  rng.normal(0, 1e-3, 3)),
+                       MagModel(rng.normal(0, 5, 3), np.eye(3) + rng.normal(0, 0.05, (3, 3))))
