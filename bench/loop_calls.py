@@ -41,15 +41,27 @@ from bench.sim_calibration import save_mag_calibration, sim_chip_mag_model  # no
 def daemon_main(out: Path, argv: list[str]) -> int:
     """The daemon, with SIGUSR1 toggling cProfile in the thread that handles signals: the event loop's."""
     profiler = cProfile.Profile()
-    state = {"on": False}
+    state = {"on": False, "samples": 0}
+    from ahrsd.daemon.pipeline import Pipeline
+
+    pipelines = []                           # the daemon's pipelines: their sample counts over the window
+    init = Pipeline.__init__
+
+    def counted_init(self, *args, **kwargs) -> None:
+        init(self, *args, **kwargs)
+        pipelines.append(self)
+    Pipeline.__init__ = counted_init
 
     def toggle(signum, frame) -> None:
+        samples = sum(p.counters.samples for p in pipelines)
         if not state["on"]:
+            state["samples"] = samples
             profiler.enable()
             state["on"] = True
             return
         profiler.disable()
         state["on"] = False
+        Path(str(out) + ".samples").write_text(str(samples - state["samples"]))
         profiler.dump_stats(str(out))
 
     signal.signal(signal.SIGUSR1, toggle)
@@ -63,8 +75,8 @@ def calls_of(stats: pstats.Stats, file_suffix: str, name: str) -> int:
     return sum(v[1] for k, v in stats.stats.items() if k[0].endswith(file_suffix) and k[2] == name)
 
 
-def run(seconds: float, profile: str) -> tuple[pstats.Stats, float]:
-    """(the window's stats, its wall seconds)."""
+def run(seconds: float, profile: str) -> tuple[pstats.Stats, float, int]:
+    """(the window's stats, its wall seconds, the samples the pipeline took in it)."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -109,11 +121,12 @@ def run(seconds: float, profile: str) -> tuple[pstats.Stats, float]:
                 time.sleep(0.1)
             time.sleep(0.3)
             stats = pstats.Stats(str(out))
+            samples = int(Path(str(out) + ".samples").read_text())
         finally:
             proc.send_signal(signal.SIGTERM)
             proc.wait(10)
             sock.close()
-    return stats, wall
+    return stats, wall, samples
 
 
 def main() -> int:
@@ -127,15 +140,14 @@ def main() -> int:
     ap.add_argument("--save", type=Path, default=None, help="also write the window's pstats file here")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f}, {time.strftime('%H:%M:%S', time.gmtime())} UTC")
-    stats, wall = run(args.seconds, args.profile)
+    stats, wall, samples = run(args.seconds, args.profile)
     if args.save is not None:
         stats.dump_stats(str(args.save))
     total = sum(v[1] for v in stats.stats.values())
     builtin = sum(v[1] for k, v in stats.stats.items() if k[0] == "~")
     blocks = calls_of(stats, "sample_reader.py", "process")
-    # the pipeline's generator is resumed once a sample and once more at a block's end (ins steps most samples in
-    # runs, Ins.step_block, not one `step` a sample)
-    samples = calls_of(stats, "pipeline.py", "process_block") - blocks
+    # samples: the pipeline's own count over the window (its generator is resumed once a run, not a sample, where
+    # the reader takes whole runs)
     sent = calls_of(stats, "mavlink_io.py", "send")
     print(f"profile {args.profile}, {wall:.1f} s: {blocks / wall:.1f} blocks/s, {samples / wall:.1f} samples/s, "
           f"{sent / wall:.1f} messages sent/s")

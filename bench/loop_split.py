@@ -19,7 +19,10 @@ Timed parts (names in the output):
   pipe and the unpacking), `per-sample path` (SampleReader.process; items = samples), `outputs`
   (Publishers.publish), `endpoint send` (Endpoint.send; items = messages sent), `GNSS fix` (GnssTask.deliver),
   `ins GNSS update` (the aided estimator's update_gnss), `hand-over deadline` (ProcessSource.hand_over_by with
-  the next-due computation); `per-sample path: late samples counted`
+  the next-due computation), `last estimate (snapshot built at the first ask)` (Pipeline.last_estimate: the
+  outputs ask first after a block, and ins builds its AttitudeEstimate then), `per-sample path: listener <name>`
+  (a sample listener; items = samples) and `per-sample path: run listener <name>` (a listener's run form,
+  daemon.sample_reader.SampleListeners `runs=`; items = the run's samples); `per-sample path: late samples counted`
   (items = samples used LATE_AFTER_S or more after they were ready, daemon.sample_reader; its CPU is not timed);
   `gc generation N`: the garbage collector's collections (items = objects collected),
   in whichever thread allocated.
@@ -135,8 +138,14 @@ def install() -> None:
             self._step = _timed("per-sample path: estimator step", self._step)
     Pipeline.estimator = Pipeline.estimator.setter(timed_estimator)
     add = SampleListeners.add
-    SampleListeners.add = lambda self, fn, **kw: add(self, _timed("per-sample path: listener " + _callback_name(fn),
-                                                                  fn), **kw)
+
+    def timed_add(self, fn, **kw):
+        runs = kw.get("runs")
+        if runs is not None:                           # its run form (items = the run's samples)
+            kw["runs"] = (_timed("per-sample path: run listener " + _callback_name(runs[0]), runs[0],
+                                 items=lambda a: len(a[0])), runs[1])
+        return add(self, _timed("per-sample path: listener " + _callback_name(fn), fn), **kw)
+    SampleListeners.add = timed_add
     for spec in OUTPUTS:
         object.__setattr__(spec, "build", _timed("outputs: build " + spec.config_key[:-3], spec.build))
     OutputSchedule.due = _timed("outputs: schedule due", OutputSchedule.due)
@@ -155,6 +164,10 @@ def install() -> None:
         late[2] += self.counters.late_samples - before
     SampleReader._count_late = counted_late
     Publishers.publish = _timed("outputs", Publishers.publish)
+    # the latest estimate asked for (the outputs first, housekeeping too): ins builds its snapshot at the first ask
+    # after a block (estimator/estimate_view.py), the outputs' largest part
+    Pipeline.last_estimate = property(_timed("last estimate (snapshot built at the first ask)",
+                                             Pipeline.last_estimate.fget))
     Publishers.next_due = _timed("next output due", Publishers.next_due)
     Endpoint.send = _timed("endpoint send", Endpoint.send, items=lambda a: 1)
     GnssTask.deliver = _timed("GNSS fix", GnssTask.deliver)

@@ -46,6 +46,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import concurrent.futures.process
+import itertools
 import logging
 import math
 import time
@@ -214,14 +215,38 @@ class MagCalProtocol:
         q = self._recent_raw
         # with the magnetometer model that calibrated it, so the raw field can be recovered later, and the sample
         # (its gyro and specific force tell a still vehicle: worked out only when a fixed yaw asks)
-        q.append((now, sample.mag_ut, self.host.current_calibration().mag if mag_model is None else mag_model,
-                  sample))
+        q.append((now, sample, self.host.current_calibration().mag if mag_model is None else mag_model))
         while q and now - q[0][0] > self.settings.fixed_yaw_average_s:
             q.popleft()
         s = self.session
         if s is not None and s.status.running:
             s.add_sample(sample, sensor_attitude(estimate, mounting), now_s=self.clock())
             self._submit_requested_fit(s)
+
+    def on_run(self, t_s, rows: np.ndarray, estimate, mag_model, mounting: np.ndarray | None = None) -> None:
+        """`on_sample` for a run of samples while no session runs (the daemon's sample reader takes whole runs then:
+        daemon.sample_reader.SampleListeners): t_s their times, rows their calibrated (n, 9) rows in the SENSOR frame
+        (gyro, accel, mag), `estimate` the in-place estimate at the last, `mounting` as `on_sample`'s. What
+        `on_sample` keeps of each sample, kept the same, in order."""
+        self._last_estimate = estimate
+        self._mounting = mounting
+        q = self._recent_raw
+        window_s = self.settings.fixed_yaw_average_s
+        now = t_s[-1]
+        # each sample kept as its calibrated row (what `_kept_vectors` reads); `on_sample` drops the oldest after each
+        # append. When the run's last time is its latest (not NaN: max() of a list starting with NaN is NaN), one
+        # trim after the run drops the same: what a trim at an earlier sample drops is as old to the last one too,
+        # and the trims drop from the front only
+        if now >= max(t_s):
+            q.extend(zip(t_s, rows, itertools.repeat(mag_model)))
+            while q and now - q[0][0] > window_s:
+                q.popleft()
+        else:
+            for t, r in zip(t_s, rows):
+                q.append((t, r, mag_model))
+                while q and t - q[0][0] > window_s:
+                    q.popleft()
+        self._last_sample_t = now
 
     def _submit_requested_fit(self, s: FieldCalibration) -> None:
         """Hand a fit the session asked for to the worker at the sample that asked (its data end there).
@@ -504,8 +529,8 @@ class MagCalProtocol:
         if self._mounting is not None:
             bias = self._mounting.T @ bias          # body axes -> sensor axes (the samples')
         q = self._recent_raw
-        turned = sum((t1 - t0) * _rate_about_vertical_rad_s(sample, bias)
-                     for (t0, *_), (t1, _m, _c, sample) in zip(q, list(q)[1:]))
+        turned = sum((t1 - t0) * _rate_about_vertical_rad_s(*_kept_vectors(kept)[:2], bias)
+                     for (t0, *_), (t1, kept, _model) in zip(q, list(q)[1:]))
         return abs(math.degrees(turned))
 
     def _fixed_yaw_hard_iron(self, yaw_deg: float, raw_mean, sensor, reference) -> int:
@@ -540,7 +565,8 @@ class MagCalProtocol:
         (raw = W⁻¹·m + h), so a calibration swapped in meanwhile — a fixed-yaw request a moment ago — does
         not enter the result twice."""
         by_model: dict[int, tuple[Any, list]] = {}
-        for _t, mag_ut, model, _sample in self._recent_raw:
+        for _t, kept, model in self._recent_raw:
+            mag_ut = _kept_vectors(kept)[2]
             by_model.setdefault(id(model), (model, []))[1].append(mag_ut)
         total = np.zeros(3)
         for model, mags in by_model.values():
@@ -594,14 +620,22 @@ def _warm_up() -> None:
 
 
 
-def _rate_about_vertical_rad_s(sample, gyro_bias_rad_s: np.ndarray) -> float:
+def _kept_vectors(kept) -> tuple:
+    """(gyro, accel, mag) of a sample the protocol keeps: its ImuSample (`on_sample`) or its calibrated (9,) row
+    (`on_run`)."""
+    if type(kept) is np.ndarray:
+        return kept[0:3], kept[3:6], kept[6:9]
+    return kept.gyro_rad_s, kept.accel_m_s2, kept.mag_ut
+
+
+def _rate_about_vertical_rad_s(gyro_rad_s, accel_m_s2, gyro_bias_rad_s: np.ndarray) -> float:
     """The gyro's rate, less its bias, about the specific force's direction (the vertical at rest); 0 when either
     is not finite."""
-    f = np.asarray(sample.accel_m_s2, dtype=float)
+    f = np.asarray(accel_m_s2, dtype=float)
     norm = float(np.linalg.norm(f))
     if not math.isfinite(norm) or norm < 1.0:
         return 0.0
-    rate = float(np.dot(np.asarray(sample.gyro_rad_s, dtype=float) - gyro_bias_rad_s, f) / norm)
+    rate = float(np.dot(np.asarray(gyro_rad_s, dtype=float) - gyro_bias_rad_s, f) / norm)
     return rate if math.isfinite(rate) else 0.0
 
 
@@ -697,6 +731,22 @@ class FieldCalibrationPart:
         it keeps the in-place estimate without reading it (a fixed-yaw calibration reads it later, between
         blocks) and swaps no calibration at a sample, so the estimator may step a run of samples before it."""
         return not self.protocol.calibrating
+
+    def takes_runs(self) -> bool:
+        """The listener takes a run of samples in one call (`on_run`) now: while no session runs (when it lets the
+        estimator step ahead)."""
+        return self.steps_ahead()
+
+    def on_run(self, t_s, rows, estimate) -> None:
+        """`on_sample` for a run of samples (daemon.sample_reader.SampleListeners `runs=`, while `takes_runs`): the
+        run's rows in the sensor frame (the pipeline's body-frame rows without a mounting, else its sensor-frame
+        rows of the run, each the sample `last_sensor_sample` gives)."""
+        pipeline = self.host.pipeline
+        mounting = pipeline.mounting
+        self.protocol.on_run(t_s, rows if mounting is None else pipeline.run_sensor_rows(), estimate,
+                             pipeline.calibration.mag, mounting)
+        if self._tick_handle is None:
+            self._tick_handle = asyncio.get_running_loop().call_soon(self._tick_and_rearm)
 
     def on_sample(self, sample, estimate) -> None:
         """The daemon's sample listener (event loop, every sample; added in place: `estimate` is read in place,

@@ -13,8 +13,10 @@ single-threaded event loop makes atomic between two samples.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
+import operator
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +33,7 @@ INVALID = SampleFlags.GYRO_INVALID | SampleFlags.ACCEL_INVALID | SampleFlags.MAG
 _INVALID, _GAP_BEFORE = int(INVALID), int(SampleFlags.GAP_BEFORE)
 _COUNTED = _INVALID | _GAP_BEFORE          # a sample flagged with either takes the counters' slow path
 _REJECTED = (ValueError, FloatingPointError, np.linalg.LinAlgError)   # what an estimator raises for a bad sample
+_or_all = functools.partial(functools.reduce, operator.or_)   # the OR of a run's flag bits, in C
 
 
 def mounting_matrix(rpy_deg) -> np.ndarray | None:
@@ -69,6 +72,11 @@ class Pipeline:
         # the last sample calibrated in the sensor frame: (block, row, calibration), built when asked for
         self._sensor: tuple | None = None
         self._sensor_sample: ImuSample | None = None
+        # process_block(whole_runs=True): the run just yielded, (first row, stop row, its estimate flag bits) and
+        # its calibrated body-frame rows; None when the estimate yielded is one sample's
+        self.run: tuple[int, int, list] | None = None
+        self.run_rows: np.ndarray | None = None
+        self._run_block: tuple | None = None     # (block, first, stop, calibration) of that run
 
     @property
     def estimator(self):
@@ -102,6 +110,15 @@ class Pipeline:
                                                raw.diag_stat, raw.counter)
         return self._sensor_sample
 
+    def run_sensor_rows(self) -> np.ndarray:
+        """The run just yielded (`process_block(whole_runs=True)`) calibrated but still in the sensor frame (before
+        the mounting): (n, 9) rows, each bit for bit the vectors `last_sensor_sample` gives for its sample."""
+        block, first, stop, cal = self._run_block
+        raw9 = block.vectors[first:stop]
+        if cal.is_identity:
+            return raw9
+        return _calibrated_rows(raw9, cal, None, row_by_row=True)
+
     @property
     def last_raw_sample(self) -> ImuSample | None:
         """The last sample as the source gave it (sensor frame, uncalibrated): what a new calibration is applied
@@ -125,7 +142,7 @@ class Pipeline:
         take `last_estimate` to keep it), else its AttitudeEstimate."""
         return next(self.process_block(SampleBlock.of((raw,))))
 
-    def process_block(self, block: SampleBlock, stepped_ahead: bool = False):
+    def process_block(self, block: SampleBlock, stepped_ahead: bool = False, whole_runs: bool = False):
         """Every sample of `block` through calibration, mounting and the estimator, in order, as a generator:
         yields each sample's estimate (read it before the next one). The block's vectors are calibrated and
         rotated at once, one (n, 9) · (9, 9) product (`block_map`: the calibration's affine maps followed by the
@@ -136,7 +153,13 @@ class Pipeline:
         their estimates are yielded (an estimator with `step_block`: Ins.step_block). Each sample's estimate then
         carries that sample's time and flags, but a snapshot built from it (`last_estimate`) is that of the run's
         last sample, and a calibration swapped meanwhile applies from the run's end: allowed only where nothing
-        does either while the block is processed (daemon.sample_reader: its listeners say so)."""
+        does either while the block is processed (daemon.sample_reader: its listeners say so).
+
+        `whole_runs` (with `stepped_ahead`): a run is yielded once, its estimate left at its last sample, with
+        `run` (first row, stop row, the run's estimate flag bits) and `run_rows` (its calibrated rows) set; the
+        counters, the last sample and the rest come out as if each of its samples had been yielded (only the
+        last one's ImuSample is built). `run` is None at a yield of one sample. For a caller whose listeners all
+        take runs (daemon.sample_reader.SampleListeners `runs=`)."""
         t_s, temp_c, supply_v, diag, counter = block.t_s, block.temp_c, block.supply_v, block.diag_stat, block.counter
         raw_flags = block.flags
         c = self.counters
@@ -146,10 +169,14 @@ class Pipeline:
             t_arr = np.array(t_s, dtype=np.float64)      # the kernel's types (Ins.step_block)
             flags_arr = np.array(raw_flags, dtype=np.int64)
         ahead = 0                 # the samples below it were stepped in a run (their flags: run_flags[i - run_first])
+        if whole_runs:
+            self.run = None
         # every sample of the daemon (819.2 a second) goes through this loop: the counting and the estimator's
         # step are written out in it, one Python call each fewer per sample; only a flagged sample (a gap, an
         # invalid axis), a rejected one or an estimator without `step` take a call
         for i in range(len(t_s)):
+            if whole_runs and i < ahead:               # taken with its run
+                continue
             if self.calibration is not cal or self.mounting is not m:
                 cal, m = self.calibration, self.mounting
                 rows = _calibrated_rows(block.vectors[i:], cal, m)     # row k is sample i + k
@@ -173,6 +200,14 @@ class Pipeline:
                 else:
                     run_flags, view = run
                     run_first, ahead = i, i + len(run_flags)
+                    if whole_runs and ahead > i:
+                        self._took_run(block, i, ahead, rows[i - first:ahead - first], cal, m)
+                        view.set(t_s[ahead - 1], run_flags[-1], True)
+                        self._view, self._snapshot = view, None
+                        self.run = (i, ahead, run_flags)
+                        yield view
+                        self.run = None
+                        continue
             if i < ahead:
                 view.set(t_s[i], run_flags[i - run_first], True)
                 self._view, self._snapshot = view, None
@@ -189,6 +224,31 @@ class Pipeline:
                 continue
             self._view, self._snapshot = est, None
             yield est
+
+    def _took_run(self, block: SampleBlock, i: int, stop: int, rows: np.ndarray, cal, m) -> None:
+        """Rows i + 1 … stop − 1 of `block` stepped in a run with row i (whose part the loop did): what the loop
+        does at each of them, at once — counted (a flagged one as the loop counts it, against the counter before
+        it), the last one the last sample (its calibrated ImuSample built)."""
+        self.run_rows = rows
+        self._run_block = (block, i, stop, cal)
+        if stop - i < 2:
+            return
+        raw_flags, counter, t_s = block.flags, block.counter, block.t_s
+        self.counters.samples += stop - i - 1
+        if _or_all(raw_flags[i + 1:stop]) & _COUNTED:
+            for j in range(i + 1, stop):
+                if raw_flags[j] & _COUNTED:
+                    self._last_counter = counter[j - 1]
+                    self._count_flagged(raw_flags[j], counter[j])
+        j = stop - 1
+        self._last_counter = counter[j]
+        self.last_sample_t_s = t_s[j]
+        self._raw = (block, j)
+        if m is not None:
+            self._sensor, self._sensor_sample = (block, j, cal), None
+        r = rows[-1]
+        self.last_sample = ImuSample(t_s[j], r[0:3], r[3:6], r[6:9], block.temp_c[j], block.supply_v[j],
+                                     sample_flags(raw_flags[j]), block.diag_stat[j], counter[j])
 
     def _count_flagged(self, flags: int, counter: int) -> None:
         """A flagged sample's share of the counters besides `samples`: a gap the source found (its size from the
@@ -239,8 +299,10 @@ def block_map(cal, m: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
 _BLOCK_MAPS: dict = {}          # (calibration, mounting) ids → their (Kᵀ, o): swaps are rare, blocks 200 a second
 
 
-def _calibrated_rows(raw9: np.ndarray, cal, m: np.ndarray | None) -> np.ndarray:
-    """The calibrated, body-frame (n, 9) rows of raw (n, 9) rows."""
+def _calibrated_rows(raw9: np.ndarray, cal, m: np.ndarray | None, row_by_row: bool = False) -> np.ndarray:
+    """The calibrated, body-frame (n, 9) rows of raw (n, 9) rows. `row_by_row`: each row's product made as a one-row
+    product, stacked ((n, 1, 9) · (9, 9): numpy's matmul runs its one-row loop for each), so a row is bit for bit
+    what the rows one at a time give; the (n, 9) product takes another BLAS kernel, whose last bits differ."""
     if cal.is_identity and m is None:
         return raw9
     key = (id(cal), id(m))
@@ -256,6 +318,9 @@ def _calibrated_rows(raw9: np.ndarray, cal, m: np.ndarray | None) -> np.ndarray:
         raw9 = raw9.copy()
         a = raw9[:, 3:6]
         a -= q * a * a                                   # f − q∘f² (AccelModel), before the matrix
-    out = raw9 @ entry[2]                                # rows: (K · raw9)ᵀ = raw9ᵀ · Kᵀ
+    if row_by_row:
+        out = (raw9[:, None, :] @ entry[2])[:, 0, :]
+    else:
+        out = raw9 @ entry[2]                            # rows: (K · raw9)ᵀ = raw9ᵀ · Kᵀ
     out -= entry[3]
     return out

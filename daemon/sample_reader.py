@@ -7,8 +7,10 @@ pipeline; output: the callbacks of `ReaderOutputs`. The reader knows nothing els
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import math
+import operator
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -31,6 +33,7 @@ LATE_AFTER_S = 0.05               # a sample used this long after it became read
 
 # IntFlag operators go through the enum machinery (a Python call each); the per-sample path tests bits on plain ints
 _int_and = int.__and__
+_or_all = functools.partial(functools.reduce, operator.or_)   # the OR of a run's flag bits, in C
 _GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
 _REINITIALISED = int(EstimateFlags.REINITIALISED)
 _INITIALISING = int(EstimateFlags.INITIALISING)
@@ -49,21 +52,32 @@ class SampleListeners:
     of a sample's estimate than its flags and time and swaps no calibration or mounting at a sample: the estimator
     may then step a run of the block's samples in one call before their listeners run (daemon.pipeline
     `process_block(stepped_ahead=True)`; ins: one compiled call for ~12 samples). Every listener must say so for
-    that; one without a predicate keeps the block stepped sample by sample."""
+    that; one without a predicate keeps the block stepped sample by sample.
+
+    A listener added with `runs=(on_run, when)` as well takes a whole run of stepped-ahead samples in one call
+    while `when()` (and its `steps_ahead`) is true: `on_run(t_s, rows, estimate)` once after the run, with the
+    samples' times and calibrated body-frame (n, 9) rows (gyro, accel, mag: a view; copy what outlives the block)
+    and the estimate left at the run's last sample, instead of `fn` at each of its samples. When every listener
+    takes runs, the pipeline does the run's per-sample bookkeeping at once (`process_block(whole_runs=True)`): no
+    per-sample Python at all for the run's samples (a listener does for the run what `fn` would have done for each
+    of its samples, in order; listeners are called one after the other for the run, not sample by sample)."""
 
     def __init__(self):
         self.fns: list[Callable] = []
         self.in_place: set[Callable] = set()
         self.steps_ahead: dict[Callable, Callable[[], bool]] = {}
+        self.runs: dict[Callable, tuple[Callable, Callable[[], bool]]] = {}
 
-    def add(self, fn: Callable, *, in_place: bool = False,
-            steps_ahead: Callable[[], bool] | None = None) -> Callable[[], None]:
+    def add(self, fn: Callable, *, in_place: bool = False, steps_ahead: Callable[[], bool] | None = None,
+            runs: tuple[Callable, Callable[[], bool]] | None = None) -> Callable[[], None]:
         """Add `fn`; returns the remover."""
         self.fns.append(fn)
         if in_place:
             self.in_place.add(fn)
         if steps_ahead is not None:
             self.steps_ahead[fn] = steps_ahead
+        if runs is not None:
+            self.runs[fn] = runs
 
         def remove() -> None:
             self.drop(fn)
@@ -75,6 +89,7 @@ class SampleListeners:
         self.in_place.discard(fn)
         if fn not in self.fns:
             self.steps_ahead.pop(fn, None)
+            self.runs.pop(fn, None)
 
     def allow_steps_ahead(self) -> bool:
         """Whether every listener lets the estimator step a run of samples before their listeners (the class's
@@ -85,6 +100,16 @@ class SampleListeners:
             if allowed is None or not allowed():
                 return False
         return True
+
+    def take_runs(self) -> bool:
+        """Whether every listener takes whole runs now (the class's doc; steps ahead allowed as well): once a
+        block."""
+        runs = self.runs
+        for fn in self.fns:
+            run = runs.get(fn)
+            if run is None or not run[1]():
+                return False
+        return self.allow_steps_ahead()
 
 
 @dataclass
@@ -322,8 +347,16 @@ class SampleReader:
         reinitialised = False
         listeners = self.listeners.fns
         in_place = self.listeners.in_place
+        whole_runs = self.listeners.take_runs()
         # the block stays columns: calibrated at once, only the calibrated samples built
-        for est in pipeline.process_block(block, self.listeners.allow_steps_ahead()):
+        for est in pipeline.process_block(block, whole_runs or self.listeners.allow_steps_ahead(), whole_runs):
+            if whole_runs and pipeline.run is not None:          # a run's samples at once (SampleListeners)
+                first, stop, run_bits = pipeline.run
+                if _or_all(run_bits) & _REINITIALISED:
+                    reinitialised = True
+                if listeners:
+                    self._run_listeners(block.t_s[first:stop], pipeline.run_rows, est)
+                continue
             if est is not None and _int_and(est.flags, _REINITIALISED):
                 reinitialised = True          # on any sample of a block, not only the last one
             if listeners and est is not None:
@@ -341,6 +374,16 @@ class SampleReader:
                         log.exception("sample listener %r failed; removed", fn)
                         self.listeners.drop(fn)
         return est, reinitialised
+
+    def _run_listeners(self, t_s, rows, est) -> None:
+        """Every listener's run form for a run of samples (SampleListeners); one that raises is dropped."""
+        runs = self.listeners.runs
+        for fn in tuple(self.listeners.fns):
+            try:
+                runs[fn][0](t_s, rows, est)
+            except Exception:  # noqa: BLE001 - a faulty listener is dropped, the reader carries on
+                log.exception("sample listener %r failed; removed", fn)
+                self.listeners.drop(fn)
 
     def _count_late(self, block: SampleBlock, ready_by: float) -> None:
         """Count the block's samples that became ready before `ready_by` (used LATE_AFTER_S or more after)."""

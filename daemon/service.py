@@ -495,8 +495,9 @@ class Service:
                                                       commands=self.commands, autopilot=self.autopilot,
                                                       set_calibrating=self.set_calibrating, clock=self.clock,
                                                       warm_fit_worker=self._warm_fit_worker)
-        self.listeners.add(self.field_calibration.on_sample, in_place=True,
-                           steps_ahead=self.field_calibration.steps_ahead)
+        part = self.field_calibration
+        self.listeners.add(part.on_sample, in_place=True, steps_ahead=part.steps_ahead,
+                           runs=(part.on_run, part.takes_runs))
 
     def _open_nmea(self) -> None:
         """The [[nmea]] heading outputs, fed every estimate (none without any)."""

@@ -8,7 +8,7 @@ import dataclasses
 
 import numpy as np
 
-from ahrsd.calibration.models import AccelModel, Calibration, GyroModel, MagModel
+from ahrsd.calibration.models import Calibration
 from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.core.sample_block import SampleBlock
@@ -17,6 +17,9 @@ from ahrsd.daemon.health import Health
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.sample_reader import LATE_AFTER_S, ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.drivers.process_source import _RECORD, pack, unpack_block
+
+from support.sample_sequence import calibration, counted_one_by_one, sequence
+from support.sample_sequence import cuts as block_cuts
 
 RATE_HZ = 819.2
 F = SampleFlags
@@ -33,14 +36,6 @@ class _StubEstimator:
     def update(self, sample):
         self.seen.append(sample)
         return _Est()
-
-
-def _cal(seed=1) -> Calibration:
-    rng = np.random.default_rng(seed)
-    return Calibration(GyroModel(rng.normal(0, 0.01, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3))),
-                       AccelModel(rng.normal(0, 0.1, 3), np.eye(3) + rng.normal(0, 0.02, (3, 3)),
-                                  rng.normal(0, 1e-3, 3)),
-                       MagModel(rng.normal(0, 5, 3), np.eye(3) + rng.normal(0, 0.05, (3, 3))))
 
 
 def _by_hand(cal: Calibration, raw: ImuSample, mounting=None):
@@ -93,7 +88,7 @@ def test_a_gap_in_the_middle_of_a_block_counts_exactly_that_gap():
 
 
 def test_every_sample_of_a_block_reaches_the_estimator_and_the_listeners_calibrated_and_mounted():
-    cal = _cal()
+    cal = calibration()
     est = _StubEstimator()
     pipeline = Pipeline(est, cal)
     pipeline.set_mounting([0.0, 0.0, 90.0])
@@ -115,7 +110,7 @@ def test_every_sample_of_a_block_reaches_the_estimator_and_the_listeners_calibra
 
 
 def test_a_calibration_swapped_by_a_listener_mid_block_applies_from_the_next_sample():
-    old, new = _cal(1), _cal(7)
+    old, new = calibration(1), calibration(7)
     pipeline = Pipeline(_StubEstimator(), old)
     reader = _reader(pipeline)
     seen = []
@@ -143,7 +138,7 @@ def test_the_field_calibration_gets_each_sample_in_the_sensor_frame_with_the_mag
     from ahrsd.daemon.magcal import FieldCalibrationPart
 
     for rpy in ([0.0, 0.0, 0.0], [0.0, 0.0, 90.0]):
-        old, new = _cal(1), _cal(7)
+        old, new = calibration(1), calibration(7)
         pipeline = Pipeline(_StubEstimator(), old)
         pipeline.set_mounting(rpy)
         given = []
@@ -196,7 +191,7 @@ def test_a_sample_the_stepping_estimator_rejects_is_counted_and_resets_it_and_th
 
     est = Stepping()
     assert isinstance(est, SteppingEstimator)
-    pipeline = Pipeline(est, _cal())
+    pipeline = Pipeline(est, calibration())
     given = list(pipeline.process_block(unpack_block(pack(_raw(range(6))))))
     assert [g is None for g in given] == [False, False, False, True, False, False]
     assert est.stepped == [0, 1, 2, 4, 5] and est.resets == 1 and pipeline.counters.estimator_errors == 1
@@ -205,7 +200,7 @@ def test_a_sample_the_stepping_estimator_rejects_is_counted_and_resets_it_and_th
 
 def test_the_vehicle_log_gets_every_raw_sample_of_a_block():
     logged = []
-    pipeline = Pipeline(_StubEstimator(), _cal())
+    pipeline = Pipeline(_StubEstimator(), calibration())
     raw = _raw(range(5))
     _reader(pipeline, raw_sink=logged.append).process(unpack_block(pack(raw)), 100.0)
     assert [s.counter for s in logged] == list(range(5))
@@ -225,7 +220,7 @@ def test_samples_already_built_take_the_same_one_path():
     """A per-sample read or a replay's list (SampleBlock.of): calibrated and mounted as the formulas by hand say,
     the sensor-frame sample too, and the raw samples the vehicle log and a new calibration see are the source's
     own objects (not copies)."""
-    cal = _cal(5)
+    cal = calibration(5)
     est = _StubEstimator()
     pipeline = Pipeline(est, cal)
     pipeline.set_mounting([0.0, 0.0, 90.0])
@@ -253,67 +248,16 @@ def test_samples_already_built_take_the_same_one_path():
 
 
 # --- the counts, samples, late samples and listeners must not depend on how a sequence is cut into blocks
-# (worked out here one sample at a time): what any block-wise rewrite of the path must keep (docs/daemon.md
+# (worked out one sample at a time: tests/support/sample_sequence.py): what any block-wise rewrite of the path must keep (docs/daemon.md
 # "Performance", session 25)
 
 
-def _sequence() -> list[ImuSample]:
-    """A recorded-like sequence: 60 samples with lost ones (counter jumps flagged GAP_BEFORE, one at a block's
-    first row and one in a block of its own), each invalid flag alone in a block, the chip's other flags
-    (ALARM with a DIAG_STAT, STALE, saturation, the burst bug recovered), and clean stretches between."""
-    rng = np.random.default_rng(4)
-    flags = [SampleFlags.NEW_DATA] * 60
-    jumps = {8: 3, 21: 1, 40: 7}                 # index: samples lost before it
-    for k in jumps:
-        flags[k] |= F.GAP_BEFORE
-    flags[13] |= F.MAG_INVALID
-    flags[26] |= F.ACCEL_INVALID
-    flags[33] |= F.GYRO_INVALID
-    flags[47] |= F.GYRO_INVALID | F.ACCEL_INVALID | F.MAG_INVALID | F.GAP_BEFORE
-    jumps[47] = 2
-    flags[15] = F.STALE
-    flags[17] |= F.ALARM
-    flags[30] |= F.GYRO_SATURATED | F.BURST_BUG_RECOVERED
-    out, counter = [], 1000
-    for k, f in enumerate(flags):
-        counter += 1 + jumps.get(k, 0)
-        out.append(ImuSample(50.0 + counter / RATE_HZ, rng.normal(0, 0.5, 3), rng.normal([0, 0, -9.8], 1.0),
-                             rng.normal([20, 0, 40], 3.0), 25.0 + 0.01 * k, 5.0 - 1e-3 * k, f,
-                             0x40 if f & F.ALARM else 0, counter))
-    return out
-
-
-def _counted_one_by_one(samples: list[ImuSample]) -> tuple[int, int, int, int]:
-    """(samples, gaps, lost, invalid) by the rules of PipelineCounters, one sample at a time."""
-    gaps = lost = invalid = 0
-    last = None
-    for s in samples:
-        if s.flags & F.GAP_BEFORE:
-            gaps += 1
-            if last is not None and s.counter > last + 1:
-                lost += s.counter - last - 1
-        if s.flags & (F.GYRO_INVALID | F.ACCEL_INVALID | F.MAG_INVALID):
-            invalid += 1
-        last = s.counter
-    return len(samples), gaps, lost, invalid
-
-
-def _cuts(n: int, seed: int) -> list[tuple[int, int]]:
-    rng = np.random.default_rng(seed)
-    out, k = [], 0
-    while k < n:
-        size = int(rng.integers(1, 8))
-        out.append((k, min(n, k + size)))
-        k += size
-    return out
-
-
 def test_the_counts_are_those_of_one_sample_at_a_time_however_the_blocks_are_cut():
-    samples = _sequence()
-    want = _counted_one_by_one(samples)
+    samples = sequence()
+    want = counted_one_by_one(samples)
     assert want == (60, 4, 13, 4)                            # the sequence's own figures (3 + 1 + 7 + 2 lost)
     for cuts in [[(k, k + 1) for k in range(60)], [(k, k + 4) for k in range(0, 60, 4)]] + \
-            [_cuts(60, seed) for seed in range(8)]:
+            [block_cuts(60, seed) for seed in range(8)]:
         est = _StubEstimator()
         pipeline = Pipeline(est, Calibration.identity())
         reader = _reader(pipeline)
@@ -323,7 +267,7 @@ def test_the_counts_are_those_of_one_sample_at_a_time_however_the_blocks_are_cut
             done = hi
             c = pipeline.counters
             # after every block, the counts of its samples so far
-            assert (c.samples, c.gaps, c.lost_samples, c.invalid_samples) == _counted_one_by_one(samples[:done])
+            assert (c.samples, c.gaps, c.lost_samples, c.invalid_samples) == counted_one_by_one(samples[:done])
         # the estimator saw every sample as the source gave it (identity calibration), each flag as it was
         assert len(est.seen) == 60
         for got, want_s in zip(est.seen, samples):
@@ -336,11 +280,11 @@ def test_the_counts_are_those_of_one_sample_at_a_time_however_the_blocks_are_cut
 
 
 def test_late_samples_and_the_last_flags_follow_the_block_sample_by_sample():
-    samples = _sequence()
+    samples = sequence()
     pipeline = Pipeline(_StubEstimator(), Calibration.identity())
     reader = _reader(pipeline)
     late = 0
-    for lo, hi in _cuts(60, 3):
+    for lo, hi in block_cuts(60, 3):
         now = samples[lo].t_s + LATE_AFTER_S + 1.5 / RATE_HZ      # the block's first two samples are late
         late += sum(1 for s in samples[lo:hi] if s.t_s < now - LATE_AFTER_S)
         reader.process(unpack_block(pack(samples[lo:hi])), now)
@@ -352,7 +296,7 @@ def test_unpacked_columns_are_the_records_fields():
     """Every field of every record, read independently through the record dtype, whatever the values (negative
     and large integers, NaN temperatures)."""
     samples = [dataclasses.replace(s, diag_stat=d, counter=c, temp_c=t)
-               for s, d, c, t in zip(_sequence()[:5], (0, -1, 2 ** 40, 7, 0x8000),
+               for s, d, c, t in zip(sequence()[:5], (0, -1, 2 ** 40, 7, 0x8000),
                                      (3, 2 ** 62, -5, 0, 11), (float("nan"), -40.0, 85.0, 0.0, 1e-300))]
     data = pack(samples)
     rec = np.frombuffer(data, dtype=_RECORD)
@@ -388,6 +332,6 @@ def test_a_listener_added_or_dropped_by_a_listener_takes_effect_from_the_next_sa
 
     reader.listeners.add(a, in_place=True)
     reader.listeners.add(b)
-    samples = [dataclasses.replace(s, flags=F.NEW_DATA) for s in _sequence()[:8]]    # counters 1001..1008
+    samples = [dataclasses.replace(s, flags=F.NEW_DATA) for s in sequence()[:8]]    # counters 1001..1008
     reader.process(unpack_block(pack(samples)), samples[-1].t_s)
     assert seen == {"a": list(range(1001, 1009)), "b": [1001, 1002, 1003], "c": list(range(1004, 1009))}

@@ -1111,6 +1111,39 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("history-search-nan", "a NaN time has no kept row at or before it, as the kernel's walk finds",
              "estimator/history_rows.py", "    if not t_s == t_s:", "    if False:",
              ("tests/test_history_rows.py",)),
+    # ------------------------------------------------------------------ session 41 (loopcpu)
+    Mutation("loopcpu-run-gap-counter", "a gap flagged inside a run is sized against the counter of the sample "
+             "before it", "daemon/pipeline.py", "self._last_counter = counter[j - 1]",
+             "self._last_counter = counter[j]", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-samples-counted", "every sample of a run taken at once is counted",
+             "daemon/pipeline.py", "self.counters.samples += stop - i - 1", "self.counters.samples += stop - i - 2",
+             ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-reinitialised-anywhere", "a re-initialisation at any sample of a run taken at once is "
+             "signalled", "daemon/sample_reader.py", "if _or_all(run_bits) & _REINITIALISED:",
+             "if run_bits[-1] & _REINITIALISED:", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-last-sample", "after a run taken at once the last sample is the run's last",
+             "daemon/pipeline.py", "        j = stop - 1", "        j = stop - 2", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-window", "the field calibration trims its window at every sample of a run",
+             "daemon/magcal.py", "            while q and now - q[0][0] > window_s:",
+             "            while q and now - q[0][0] > 2 * window_s:", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-trim-once-only-in-order", "the field calibration trims its window once after a run only "
+             "when the run's last time is its latest", "daemon/magcal.py", "        if now >= max(t_s):",
+             "        if True:", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-kept-row", "a sample kept from a run is its calibrated row (gyro, accel, mag)",
+             "daemon/magcal.py", "        return kept[0:3], kept[3:6], kept[6:9]",
+             "        return kept[3:6], kept[0:3], kept[6:9]", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-needs-every-listener", "the reader takes whole runs only when every listener has a run form",
+             "daemon/sample_reader.py", "            if run is None or not run[1]():",
+             "            if run is not None and not run[1]():", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-mounted-sensor-frame", "a mounted install's field calibration keeps a run's rows in the "
+             "sensor frame", "daemon/magcal.py",
+             "self.protocol.on_run(t_s, rows if mounting is None else pipeline.run_sensor_rows(), estimate,",
+             "self.protocol.on_run(t_s, rows, estimate,", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-sensor-rows-one-by-one", "a run's sensor-frame rows are the one-row products, bit for bit",
+             "daemon/pipeline.py", "return _calibrated_rows(raw9, cal, None, row_by_row=True)",
+             "return _calibrated_rows(raw9, cal, None)", ("tests/test_whole_runs.py",)),
+    Mutation("loopcpu-run-no-session", "the field calibration takes runs only while no session runs",
+             "daemon/magcal.py", "        return self.steps_ahead()", "        return True", ("tests/test_whole_runs.py",)),
     # ------------------------------------------------------------------ session 40 (blk)
     Mutation("blk-fix-due-sample-alone", "a run of samples stops before the sample a queued fix falls due at (stepped "
              "alone, the fix fused after it)", "estimator/ins_step_block.py", "        if t >= stop_t_s:",
