@@ -268,10 +268,16 @@ class InsParams(MagHeadingParams):
     heading, constant while the heading holds, which only turns and the GNSS can learn. Fused as noise lasting
     `iron_learned_tau_s`, a straight leg averaged it away and pulled the heading (and the vertical gyro bias) to
     the learned magnetometer's (docs/gnss.md "A learned iron's error as states"). False: that noise."""
-    iron_harmonic_residual_share: float = 1.0
+    iron_harmonic_residual_share: float = 0.0
     """With `iron_harmonic_states`: the share of the learned magnetometer's floor (mag_error_states.learned_floor_var_rad2, what no
     learned iron explains) still fused as noise lasting `iron_learned_tau_s`; the rest is added to the states'
-    prior, split as a calibration's (`mag_harmonic_offset_share`)."""
+    prior, split as a calibration's (`mag_harmonic_offset_share`). 0: all of it is a state. What the floor stands
+    for (`iron_unmodelled_ut`) is a field error fixed in the NED frame (the WMM's error, a local anomaly: a heading
+    offset, c0) or fixed to the body (the soft iron's third column times the vertical field while the vehicle stays
+    level: once per turn, c1 / s1): a function of the heading, which a straight leg does not average away. Fused as
+    noise renewed every `iron_learned_tau_s`, a wide floor (a weak horizontal field) kept a trusted learned
+    magnetometer from holding a GNSS–inertial yaw that had drifted, though the magnetometer itself was right
+    (docs/gnss.md "(highlat)")."""
     iron_tau_s: float = 5.0
     """Correlation time of that unexplained error while the vehicle moves, s (the learner's noise is inflated
     by τ/Δt between fixes)."""

@@ -116,7 +116,8 @@ def test_a_calibrated_magnetometer_pins_the_rotation_and_its_prior_widens_only_b
 
 
 def test_a_reset_or_restored_iron_forgets_the_window():
-    est = Ins()
+    # the floor fused as noise (session 41 carries it in the prior: its c0 share, 1.03° here, would mask the window's)
+    est = Ins(iron_harmonic_residual_share=1.0)
     _learn(est, 2.0 * math.pi, WINDOW_YAW_ERROR_DEG)
     offset_ut, cov = est.learned_iron()
     soft, soft_cov = est.learned_soft_iron()

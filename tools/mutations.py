@@ -1435,4 +1435,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("pa96-offset-held-passed", "the filter tells the rule whether the learned iron's offset is held",
              "estimator/heading_supervision.py", "offset_held=self._iron.offset_held)", "offset_held=False)",
              ("tests/test_magnetometer_use_yaw.py",)),
+    # ------------------------------------------------------------------ session 41 (highlat)
+    Mutation("highlat-floor-as-states", "once a learned iron's error is carried as the harmonic states, its floor is "
+             "carried in their prior, not fused as noise lasting iron_learned_tau_s (the default share is 0)",
+             "estimator/ins.py", "iron_harmonic_residual_share: float = 0.0",
+             "iron_harmonic_residual_share: float = 1.0", ("tests/test_learned_floor_as_states.py",)),
+    Mutation("highlat-floor-noise-share", "the kernel fuses only the share of the floor the parameter gives as noise",
+             "estimator/mag_error_states.py",
+             'par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * _floor_var(p, field_ned_ut)',
+             'par["mag_harmonic_residual_var_rad2"] = _floor_var(p, field_ned_ut)',
+             ("tests/test_learned_floor_as_states.py",)),
 )
