@@ -109,7 +109,8 @@ def longest_turn_after(t_s, q_wxyz, t_from_s: float, t_last_start_s: float, min_
 
 def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None, outage: bool = False,
                      rate_hz: float = RATE_HZ, lever_arm: bool = False, mag: str = "calibrated",
-                     iron: str | None = None, errors=None, gnss_errors=None, start_s: float = 0.0) -> VehicleRun:
+                     iron: str | None = None, errors=None, gnss_errors=None, start_s: float = 0.0,
+                     field_anomaly_ned_ut=None) -> VehicleRun:
     """`seconds` of vehicle `name` at the site ("LAT,LON[,ALT[,DATE]]", None: DEFAULT_SITE) with its GNSS fixes
     (in arrival order), with a 30 s outage from the start of the longest turn after 60 s when `outage`, the
     antenna at LEVER_ARMS_M[name] when `lever_arm`.
@@ -121,7 +122,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     (VehicleIron.unseen), on every vehicle.
     errors: the sensor's SensorErrors (None: SensorErrors.adis16405(seed)); gnss_errors: the receiver's GnssErrors
     (None: GNSS_ERRORS); start_s: where in the scenario the run (and the estimator) starts, s (the daemon
-    started or restarted there: in a turn, heeled)."""
+    started or restarted there: in a turn, heeled); field_anomaly_ned_ut: the true field's departure from WMM's
+    (NED, µT; open_stream), None for none; the run's declination stays WMM's."""
     from ahrsd.simulation import DEFAULT_SITE, GnssErrors, SensorErrors, Site, VehicleIron, open_stream, simulate_gnss
 
     if mag not in MAG_CASES:
@@ -131,7 +133,8 @@ def simulate_vehicle(name: str, seconds: float, seed: int, site_text: str | None
     if mag == "iron-step":
         errors = errors.replace(hard_iron_step_ut=IRON_STEP_UT, hard_iron_step_t_s=start_s + IRON_STEP_AT * seconds)
     stream = open_stream(name, rate_hz=rate_hz, seed=seed, site=site, errors=errors, start_s=start_s,
-                         vehicle_iron="scenario" if iron is None else honesty_iron(iron))
+                         vehicle_iron="scenario" if iron is None else honesty_iron(iron),
+                         field_anomaly_ned_ut=field_anomaly_ned_ut)
     block = stream.next_block(int(round(seconds * rate_hz)))
     err = stream.errors
     if mag == "uncalibrated":

@@ -118,12 +118,15 @@ class SensorStream:
     `errors` is the SensorErrors in force, vehicle iron included (its hard_iron_ut/soft_iron are what a perfect
     magnetometer calibration must find). `scenario` is the Scenario object (its parameters, helpers like
     `leg_of`), `site` the Site, `earth_field` the WMM2025 field there, `earth_rate` whether the Earth rotates.
+    `field_anomaly_ned_ut` (None: none) is added to WMM's field to make the true field the magnetometer senses;
+    `earth_field` stays WMM's, what an estimator is told (it does not know the anomaly).
     """
 
     CHUNK = 256  # samples generated at a time for small requests (0.31 s at 819.2 Hz)
 
     def __init__(self, scenario: Scenario, rate_hz: float, seed: int, errors: SensorErrors, site: Site,
-                 start_s: float, vehicle_iron: VehicleIron | None, earth_rate: bool):
+                 start_s: float, vehicle_iron: VehicleIron | None, earth_rate: bool,
+                 field_anomaly_ned_ut=None):
         if not (np.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz must be positive, got {rate_hz!r}")
         self.scenario = scenario
@@ -135,7 +138,11 @@ class SensorStream:
         self.sensor_errors = errors
         self.errors = errors.with_vehicle_iron(vehicle_iron) if vehicle_iron is not None else errors
         self.earth_field = site.earth_field()
-        self._field_ned = self.earth_field.ned_ut
+        self.field_anomaly_ned_ut = _anomaly_ned_ut(field_anomaly_ned_ut)
+        # The true field: WMM's plus the local departure from it (map error, a local anomaly; fixed to north). No
+        # anomaly: WMM's vector itself, so that today's streams stay bit for bit.
+        self._field_ned = (self.earth_field.ned_ut if self.field_anomaly_ned_ut is None
+                           else self.earth_field.ned_ut + self.field_anomaly_ned_ut)
         self._gravity_ned = site.gravity_ned_m_s2
         self.earth_rate = bool(earth_rate)
         self._track = GeodeticTrack(scenario.velocity_ned_m_s, site.lat_deg, site.lon_deg, site.alt_m)
@@ -226,6 +233,15 @@ def _slice(block: SensorBlock, a: int, b: int) -> SensorBlock:
     return SensorBlock(*(getattr(block, f.name)[a:b] for f in dataclasses.fields(SensorBlock)))
 
 
+def _anomaly_ned_ut(field_anomaly_ned_ut):
+    if field_anomaly_ned_ut is None:
+        return None
+    v = np.array(field_anomaly_ned_ut, dtype=float)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"field_anomaly_ned_ut must be 3 finite NED components (µT), got {field_anomaly_ned_ut!r}")
+    return v
+
+
 def _resolve_scenario(scenario, site: Site) -> Scenario:
     sc = make_scenario(scenario) if isinstance(scenario, str) else scenario
     if not isinstance(sc, Scenario):
@@ -235,7 +251,8 @@ def _resolve_scenario(scenario, site: Site) -> Scenario:
 
 def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,
                 errors: str | SensorErrors = "adis16405", site: Site = DEFAULT_SITE, start_s: float = 0.0,
-                *, vehicle_iron: VehicleIron | str | None = "scenario", earth_rate: bool | None = None) -> SensorStream:
+                *, vehicle_iron: VehicleIron | str | None = "scenario", earth_rate: bool | None = None,
+                field_anomaly_ned_ut=None) -> SensorStream:
     """An endless simulated sensor stream.
 
     scenario: a name from SCENARIOS or a Scenario instance (e.g. make_scenario("auv-out-and-back", leg_s=120)).
@@ -250,6 +267,9 @@ def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,
       None (default):
       the scenario's choice, `Scenario.rotating_earth` (True for boat, car and plane, False for the others).
       The truth rate is always relative to NED; the magnetic field is the site's throughout (tracks of a few km).
+    field_anomaly_ned_ut: None (default: the true field is WMM2025's exactly) or a constant NED vector (µT) added
+      to WMM's field: the local field's departure from the model (WMM's declination error is ~0.3-0.5° 1σ, NOAA's
+      WMM error model; local anomalies add more). The stream's `earth_field` stays WMM's (what an estimator uses).
     """
     site = site if site is not None else DEFAULT_SITE
     sc = _resolve_scenario(scenario, site)
@@ -259,7 +279,8 @@ def open_stream(scenario: str | Scenario, rate_hz: float = 819.2, seed: int = 0,
         vehicle_iron = sc.default_iron
     if earth_rate is None:
         earth_rate = sc.rotating_earth
-    return SensorStream(sc, rate_hz, seed, _resolve_errors(errors, seed), site, start_s, vehicle_iron, earth_rate)
+    return SensorStream(sc, rate_hz, seed, _resolve_errors(errors, seed), site, start_s, vehicle_iron, earth_rate,
+                        field_anomaly_ned_ut)
 
 
 def simulate(scenario: str | Scenario, seconds: float, rate_hz: float = 819.2, seed: int = 0,

@@ -1445,4 +1445,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              'par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * _floor_var(p, field_ned_ut)',
              'par["mag_harmonic_residual_var_rad2"] = _floor_var(p, field_ned_ut)',
              ("tests/test_learned_floor_as_states.py",)),
+    # ------------------------------------------------------------------ session 41 (anomaly)
+    Mutation("anomaly-field-not-added", "the simulator's true field is WMM's plus the field anomaly it is given",
+             "simulation/stream.py", "else self.earth_field.ned_ut + self.field_anomaly_ned_ut)",
+             "else self.earth_field.ned_ut)", ("tests/test_field_anomaly.py",)),
+    Mutation("anomaly-flag-not-east", "heading_timeline --field-anomaly-ut E is E µT towards east",
+             "bench/heading_timeline.py", "else (0.0, float(east_ut), 0.0)", "else (float(east_ut), 0.0, 0.0)",
+             ("tests/test_field_anomaly.py",)),
 )
