@@ -19,7 +19,6 @@ import numpy as np
 import pytest
 
 from ahrsd.calibration.models import Calibration
-from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import SampleFlags
 from ahrsd.core.sample_block import SampleBlock
 from ahrsd.daemon.counters import ServiceCounters
@@ -31,6 +30,7 @@ from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleRea
 from ahrsd.drivers import threaded_source
 from ahrsd.drivers.source_interface import LiveSource
 from ahrsd.drivers.threaded_source import HANDOVER_MAX_S, HandoverPlan, ThreadedSource
+from support.stub_estimator import StubEstimator
 from support.virtual_time_loop import VirtualTimeLoop
 
 RATE_HZ = 819.2
@@ -61,15 +61,6 @@ GCS_RATES_HZ = {mavlink.MAVLINK_MSG_ID_ATTITUDE: 50.0, mavlink.MAVLINK_MSG_ID_VI
                 mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 10.0, mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0}
 RUN_S = 5.0
 THREAD_WAKE_S = 0.0002     # the reader thread's read and hand-over take this long (shorter than a period)
-
-
-class _Est:
-    flags = EstimateFlags.NONE
-
-
-class _StubEstimator:
-    def update(self, sample):
-        return _Est()
 
 
 class _KernelAndReader(LiveSource):
@@ -154,7 +145,7 @@ def _run_reader(rates_hz):
             last = box[0].pipeline.last_sample
             sent.append((now, None if last is None else last.t_s))
 
-    reader = SampleReader(source, Pipeline(_StubEstimator(), Calibration.identity()), Health(stale_timeout_s=0.1),
+    reader = SampleReader(source, Pipeline(StubEstimator(), Calibration.identity()), Health(stale_timeout_s=0.1),
                           ServiceCounters(), SampleListeners(),
                           ReaderOutputs(publish=publish, statustext=lambda sev, text: None, heading_reset=lambda: None,
                                         ready=lambda: None, next_due=lambda: schedule.next_due),

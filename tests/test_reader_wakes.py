@@ -12,7 +12,6 @@ import asyncio
 import os
 
 from ahrsd.calibration.models import Calibration
-from ahrsd.core.estimate import EstimateFlags
 from ahrsd.core.sample import make_sample
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
@@ -21,14 +20,7 @@ from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleRea
 from ahrsd.drivers.errors import BusError
 from ahrsd.drivers.source_interface import LiveSource
 
-
-class _Est:
-    flags = EstimateFlags.NONE
-
-
-class _StubEstimator:
-    def update(self, sample):
-        return _Est()
+from support.stub_estimator import StubEstimator
 
 
 class PipeSource(LiveSource):
@@ -72,7 +64,7 @@ class PipeSource(LiveSource):
 
 
 def _reader(source, poll_hz, published):
-    return SampleReader(source, Pipeline(_StubEstimator(), Calibration.identity()), Health(stale_timeout_s=0.1),
+    return SampleReader(source, Pipeline(StubEstimator(), Calibration.identity()), Health(stale_timeout_s=0.1),
                         ServiceCounters(), SampleListeners(),
                         ReaderOutputs(publish=lambda now: published.append(now), statustext=lambda sev, text: None,
                                       heading_reset=lambda: None, ready=lambda: None),
