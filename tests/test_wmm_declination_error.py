@@ -41,7 +41,7 @@ def _offset_var(ins: Ins) -> float:
 @pytest.mark.parametrize("field_ned_ut, sigma_deg", [((20.0, 0.0, 40.0), SIGMA_D_20UT_DEG),
                                                      ((6.0, 8.0, 55.0), SIGMA_D_10UT_DEG)])
 def test_the_calibration_s_offset_prior_carries_it_once_the_field_is_known(field_ned_ut, sigma_deg):
-    ins = Ins(declination_rad=0.0, mag_calibration_sigma_rad=CAL_SIGMA_RAD)
+    ins = Ins(declination_rad=0.0, mag_calibration_sigma_rad=CAL_SIGMA_RAD, mag_wmm_declination_error=True)
     errors = ins._mag_errors
     assert errors.source == "calibration"
     own = OFFSET_SHARE * CAL_SIGMA_RAD ** 2
@@ -58,8 +58,9 @@ def test_the_calibration_s_offset_prior_carries_it_once_the_field_is_known(field
     assert _offset_var(ins) == pytest.approx(with_wmm, rel=1e-5)
 
 
-def test_set_off_it_is_the_calibration_s_figure_alone():
-    ins = Ins(declination_rad=0.0, mag_calibration_sigma_rad=CAL_SIGMA_RAD, mag_wmm_declination_error=False)
+def test_off_by_default_it_is_the_calibration_s_figure_alone():
+    ins = Ins(declination_rad=0.0, mag_calibration_sigma_rad=CAL_SIGMA_RAD)
+    assert ins.params.mag_wmm_declination_error is False
     field = np.array([20.0, 0.0, 40.0])
     ins._mag_errors.select(ins.params, "calibration", field, 0.0)
     ins._mag_errors.restart_harmonics(ins.params, field, 0.0)
@@ -69,7 +70,7 @@ def test_set_off_it_is_the_calibration_s_figure_alone():
 def test_harmonics_off_nothing_is_added():
     """Only the calibration's prior is given σ_D (a learned iron's floor, `iron_unmodelled_ut`, holds the field's
     error there); with the harmonics carrying nothing, c0's variance is left as it was."""
-    ins = Ins(declination_rad=0.0, mag_calibration_sigma_rad=CAL_SIGMA_RAD)
+    ins = Ins(declination_rad=0.0, mag_calibration_sigma_rad=CAL_SIGMA_RAD, mag_wmm_declination_error=True)
     before = _offset_var(ins)
     ins._mag_errors.select(ins.params, None, np.array([20.0, 0.0, 40.0]), 0.0)
     assert _offset_var(ins) == before
@@ -87,7 +88,7 @@ def _beyond_3_sigma(seconds: float, params: dict) -> float:
 def test_a_field_half_a_microtesla_off_wmm_s_stays_within_3_sigma():
     """0.5 µT east at the held-out site is ~1.3 σ_D of WMM's error there: covered by c0's prior (≤ 1 % beyond 3σ;
     a Gaussian 0.27 %); without the term the same run is over-confident."""
-    on, off = _beyond_3_sigma(400.0, {}), _beyond_3_sigma(400.0, {"mag_wmm_declination_error": False})
+    on, off = _beyond_3_sigma(400.0, {"mag_wmm_declination_error": True}), _beyond_3_sigma(400.0, {})
     print(f"beyond 3 sigma: with the term {on:.2%}, without {off:.2%}")
     assert on <= 0.01
     assert off > 0.02
