@@ -203,12 +203,12 @@ class InsParams(MagHeadingParams):
     (docs/figures.md "A calibrated magnetometer's heading error as states")."""
     mag_wmm_declination_error: bool = False
     """True: a calibration's north-fixed heading offset state c0 (`mag_harmonic_states`) also carries WMM's own
-    declination error at the filter's WMM field: its prior variance gains σ_D² (wmm_declination_error.
-    wmm_declination_sigma_rad, WMM2025's error model), added once the field is known. The true field differs from
-    WMM's by that much, fixed to north; with it the calibrated boat stays within 3σ under a field 0.5 µT off WMM's.
-    Off by default: in tests/test_ins.py's model-matched level turns (σ_cal 0) c0 then takes up ~2° of the
-    start's yaw error at a stated 0.25° (attitude NEES 27 against ≤ 4.2) (docs/estimator.md "Session 41 (wmmerr)").
-    False: the calibration's own figure alone."""
+    declination error at the filter's WMM field: its prior variance gains σ_D² (wmm_declination_error.py, WMM2025's
+    error model), added once the field is known. The true field differs from WMM's by that much, fixed to north;
+    with it the calibrated boat stays within 3σ under a field half a µT off WMM's. Off by default: in the
+    model-matched level turns of tests/test_ins.py's NEES c0 then takes up the start's yaw error at far more than
+    its stated σ (docs/estimator.md "WMM's declination error as the calibration's offset"). False: the
+    calibration's own figure alone."""
     mag_harmonic_residual_share: float = 0.1
     """The share of the calibration's heading variance the harmonics do not hold (a boat's heel and a plane's
     bank turn the field against the calibration's levelled one: error that changes in seconds), fused as noise

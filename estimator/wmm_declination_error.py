@@ -12,7 +12,8 @@ of WMM2025; WMM2020's was 0.26° and 5625 nT.) 0.375° at H = 20 µT, 0.601° at
 
 The error is fixed to north, the same at every heading while the vehicle stays in one region: in a calibrated
 magnetometer's heading it is a constant offset, the north-fixed harmonic state c0 (mag_harmonics.py), which the
-GNSS can learn on a manoeuvring vehicle, not white noise (docs/estimator.md "Session 41 (wmmerr)").
+GNSS can learn on a manoeuvring vehicle, not white noise
+(docs/estimator.md "WMM's declination error as the calibration's offset").
 """
 
 from __future__ import annotations
