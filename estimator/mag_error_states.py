@@ -15,10 +15,12 @@ import math
 
 import numpy as np
 
+from . import ins_core as core
 from .calibration_heading import calibration_states_error
 from .iron_in_use import IronInUse
 from .mag_error_restarts import (IRON_HARMONIC_YAWS_RAD, calibration_harmonics_prior, frame_tilt_heading_sigma_rad,
                                  iron_harmonics_prior, restart_frame_tilt, restart_harmonics)
+from .wmm_declination_error import wmm_declination_sigma_rad
 
 
 def learned_floor_var_rad2(p, h2_ut2: float) -> float:
@@ -54,6 +56,8 @@ class MagErrorStates:
         self._x, self._P, self._par = x, P, par     # the kernel's state record, covariance and parameter record
         self._learned_iron = learned_iron
         self.source: str | None = None    # what the harmonic states carry: "calibration", "iron" or None (off)
+        # WMM's declination error is in the calibration's offset prior (c0) since its latest restart
+        self._wmm_in_offset = False
 
     @property
     def harmonics_on(self) -> bool:
@@ -71,6 +75,8 @@ class MagErrorStates:
             par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * _floor_var(p, field_ned_ut)
         if source is not None and source != was:
             self.restart_harmonics(p, field_ned_ut, declination_rad)
+        elif source == "calibration" and not self._wmm_in_offset:
+            self._add_wmm_declination_error(p, field_ned_ut)     # the WMM field known only now (the first fix)
         self.set_frame_tilt(p)
 
     def set_frame_tilt(self, p) -> None:
@@ -107,6 +113,21 @@ class MagErrorStates:
             prior = calibration_harmonics_prior(p.calibration_sigma_rad, p.mag_harmonic_offset_share,
                                                 self._frame_tilt_heading_sigma_rad(p))
         restart_harmonics(self._x, self._P, prior)
+        self._wmm_in_offset = False
+        if prior is not None and self.source == "calibration":
+            self._add_wmm_declination_error(p, field_ned_ut)
+
+    def _add_wmm_declination_error(self, p, field_ned_ut: np.ndarray | None) -> None:
+        """WMM's declination error at the WMM field (wmm_declination_error.py) added to the calibration's offset
+        state c0's variance, once per restart, when `mag_wmm_declination_error` and the field is known: the true
+        field's azimuth is off WMM's by it, fixed to north, which a calibration made against WMM's field cannot
+        know. Added to a state uncorrelated with it (a new independent error), P stays a covariance."""
+        field = field_ned_ut
+        if not p.mag_wmm_declination_error or field is None:
+            return
+        sigma_rad = wmm_declination_sigma_rad(math.hypot(float(field[0]), float(field[1])))
+        self._P[core.E_MH, core.E_MH] += sigma_rad ** 2
+        self._wmm_in_offset = True
 
     def _frame_tilt_heading_sigma_rad(self, p) -> float:
         """The share of the calibration's heading error the frame-tilt states carry (rad), with the condition of
