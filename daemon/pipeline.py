@@ -33,7 +33,7 @@ INVALID = SampleFlags.GYRO_INVALID | SampleFlags.ACCEL_INVALID | SampleFlags.MAG
 _INVALID, _GAP_BEFORE = int(INVALID), int(SampleFlags.GAP_BEFORE)
 _COUNTED = _INVALID | _GAP_BEFORE          # a sample flagged with either takes the counters' slow path
 _REJECTED = (ValueError, FloatingPointError, np.linalg.LinAlgError)   # what an estimator raises for a bad sample
-_or_all = functools.partial(functools.reduce, operator.or_)   # the OR of a run's flag bits, in C
+or_all = functools.partial(functools.reduce, operator.or_)    # the OR of a run's flag bits, in C (sample_reader too)
 
 
 def mounting_matrix(rpy_deg) -> np.ndarray | None:
@@ -235,7 +235,7 @@ class Pipeline:
             return
         raw_flags, counter, t_s = block.flags, block.counter, block.t_s
         self.counters.samples += stop - i - 1
-        if _or_all(raw_flags[i + 1:stop]) & _COUNTED:
+        if or_all(raw_flags[i + 1:stop]) & _COUNTED:
             for j in range(i + 1, stop):
                 if raw_flags[j] & _COUNTED:
                     self._last_counter = counter[j - 1]

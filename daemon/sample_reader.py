@@ -7,10 +7,8 @@ pipeline; output: the callbacks of `ReaderOutputs`. The reader knows nothing els
 from __future__ import annotations
 
 import asyncio
-import functools
 import logging
 import math
-import operator
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -20,7 +18,7 @@ from ahrsd.core.sample_block import SampleBlock
 from ahrsd.daemon.counters import ServiceCounters
 from ahrsd.daemon.health import Health
 from ahrsd.daemon.mavlink_io import mavlink
-from ahrsd.daemon.pipeline import Pipeline
+from ahrsd.daemon.pipeline import Pipeline, or_all
 from ahrsd.daemon.timerfd import DeadlineTimer
 from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.read_failures import FRAME_ERRORS_FOR_FAILURE
@@ -33,7 +31,6 @@ LATE_AFTER_S = 0.05               # a sample used this long after it became read
 
 # IntFlag operators go through the enum machinery (a Python call each); the per-sample path tests bits on plain ints
 _int_and = int.__and__
-_or_all = functools.partial(functools.reduce, operator.or_)   # the OR of a run's flag bits, in C
 _GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
 _REINITIALISED = int(EstimateFlags.REINITIALISED)
 _INITIALISING = int(EstimateFlags.INITIALISING)
@@ -352,7 +349,7 @@ class SampleReader:
         for est in pipeline.process_block(block, whole_runs or self.listeners.allow_steps_ahead(), whole_runs):
             if whole_runs and pipeline.run is not None:          # a run's samples at once (SampleListeners)
                 first, stop, run_bits = pipeline.run
-                if _or_all(run_bits) & _REINITIALISED:
+                if or_all(run_bits) & _REINITIALISED:
                     reinitialised = True
                 if listeners:
                     self._run_listeners(block.t_s[first:stop], pipeline.run_rows, est)

@@ -1119,7 +1119,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "daemon/pipeline.py", "self.counters.samples += stop - i - 1", "self.counters.samples += stop - i - 2",
              ("tests/test_whole_runs.py",)),
     Mutation("loopcpu-run-reinitialised-anywhere", "a re-initialisation at any sample of a run taken at once is "
-             "signalled", "daemon/sample_reader.py", "if _or_all(run_bits) & _REINITIALISED:",
+             "signalled", "daemon/sample_reader.py", "if or_all(run_bits) & _REINITIALISED:",
              "if run_bits[-1] & _REINITIALISED:", ("tests/test_whole_runs.py",)),
     Mutation("loopcpu-run-last-sample", "after a run taken at once the last sample is the run's last",
              "daemon/pipeline.py", "        j = stop - 1", "        j = stop - 2", ("tests/test_whole_runs.py",)),
