@@ -81,6 +81,7 @@ class SampleTimer:
             # later read one low if the sample became ready during the transfer. Cut it at the earlier phase
             # instead (φ ≤ read_time): at worst one phantom loss, counted as ambiguous.
             self.hi, self.lo, self.k = read_time, read_time - P, 0
+            self._hi_fresh, self._lo_fresh = self.hi, self.lo
             self._t_hi = self._t_lo = read_time
             if end > read_time:
                 self.ambiguous_reads += 1
@@ -96,7 +97,7 @@ class SampleTimer:
             return self.fresh(read_time, read_end)
         return self.fresh_after_first(read_time, read_end, certain_only=True)
 
-    _hi_fresh: float | None = None      # the bracket after the last fresh read after the first (StallAware's)
+    _hi_fresh: float | None = None      # the bracket after the last fresh read (StallAware's stale reads go back to it)
     _lo_fresh: float | None = None
 
     def fresh_after_first(self, read_time: float, end: float, certain_only: bool) -> tuple[float, int, int] | None:
@@ -176,12 +177,6 @@ class StallAwareSampleTimer(SampleTimer):
     STALL_PERIODS = 2.0
 
     stalled_reads = 0
-
-    def fresh(self, read_time: float, read_end: float | None = None,
-              newer_ready: bool = False) -> tuple[float, int, int]:
-        out = super().fresh(read_time, read_end, newer_ready)
-        self._hi_fresh, self._lo_fresh = self.hi, self.lo
-        return out
 
     def stale(self, read_time: float) -> None:
         if (self._hi_fresh is not None

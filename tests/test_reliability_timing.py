@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -84,3 +85,25 @@ def test_repeated_and_backwards_time_stamps_never_break_the_estimate():
     assert np.degrees(2 * math.acos(min(1.0, abs(float(np.dot(q, out.q_wxyz)))))) < 0.5   # no jump
     out = est.update(_static(t + P))
     assert np.all(np.isfinite(out.q_wxyz))
+
+
+@pytest.mark.parametrize("stall_periods", [5, 40])
+def test_a_stall_right_after_the_first_sample_keeps_the_phase(stall_periods):
+    """The chip's data-ready stalls just after its first sample (ND clear on every read for `stall_periods`
+    periods): the stale reads meanwhile are taken as a stall, not as a phase error (StallAwareSampleTimer goes back
+    to the bracket of the last fresh read — here the first one's), so the first sample after the stall gets the
+    index its time says, counting the samples the stall cost."""
+    timer = StallAwareSampleTimer(P)
+    phi = 50.0 + 0.4 * P                       # sample k is ready at phi + k P
+    T = phi + 0.3 * P
+    t, k, lost = timer.fresh(T)                # sample 0
+    assert (k, lost) == (0, 0)
+    resume = phi + stall_periods * P           # the chip's next new sample: index `stall_periods`
+    T = max(timer.next_read_time(), T + 1e-6)
+    while T < resume:
+        timer.stale(T)
+        T = max(timer.next_read_time(), T + 1e-6)
+    newest = math.floor((T - phi) / P)
+    t, k, lost = timer.fresh(T)
+    assert k == newest and lost == newest - 1
+    assert -100e-6 < t - (phi + newest * P) < P

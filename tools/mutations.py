@@ -1372,6 +1372,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("pacing-own-sleep-spaced", "the reader's own wait spaces the re-reads of a stalled chip",
              "drivers/threaded_source.py", "        if self.last_stale:", "        if False:",
              ("tests/test_pacing_own_sleep.py",)),
+    # ------------------------------------------------------------------ session 41 (review)
+    Mutation("timer-first-fresh-bracket-kept", "a stall right after the first sample goes back to the first fresh "
+             "read's bracket (StallAwareSampleTimer)", "drivers/sample_timer.py",
+             "            self._hi_fresh, self._lo_fresh = self.hi, self.lo",
+             "            self._hi_fresh, self._lo_fresh = None, None",
+             ("tests/test_reliability_timing.py",)),
     # ------------------------------------------------------------------ session 41 (rdjit)
     Mutation("rdjit-bracket-smallest-index", "the timer's smallest index a read allows is the latest sample ready by "
              "the read's start even at the bracket's latest phase (an index the clock leaves open is asked of the chip)",
