@@ -32,6 +32,9 @@ Each seed is run (the place's own iron or `--iron`'s, 600 s, GNSS 5 Hz) once per
   no magnetometer     ins without its magnetometer (`mag_enabled` false): the GNSS–inertial heading alone;
   receiver errors 0   the GNSS fixes without their position and velocity errors, their reported accuracies kept
                       (the filter weights them as before);
+  receiver errors 0, noise 0   that, and the sensor without its white noise (gyro, accelerometer, magnetometer) and
+                      in-run bias processes, its turn-on errors kept: what is left is what the filter's model makes
+                      of the turn-on errors and the iron alone, no draw of noise (a model error, if any, shows here);
   rotation tilt term 0    the magnetometer's turning (estimator/mag_rotation.py) fitted without the term for the
                       filter's tilt moving between a window's ends (√2·tan|dip|·σ_tilt / T): an upper bound of
                       what a tilt-change model smaller than that term could give, not an honest variance —
@@ -71,7 +74,7 @@ from bench.vehicle_accuracy import (GNSS_ERRORS, HONESTY_IRONS, estimates_in_arr
 EVERY = 8
 ROWS = ("defaults", "s_z truth", "b_z truth", "b_z truth before 180 s", "b_z truth from 180 s", "b_z,s_z truth", "turn-on 0", "turn-on 0, no ARW", "turn-on 0, no VRW",
         "turn-on 0, no in-run", "yaw aid 1°", "yaw aid 1° + 1° over 60 s", "iron at true attitude",
-        "no magnetometer", "receiver errors 0", "rotation tilt term 0", "fused while learning",
+        "no magnetometer", "receiver errors 0", "receiver errors 0, noise 0", "rotation tilt term 0", "fused while learning",
         "offset as a state", "offset as a state, with the yaw")
 YAW_AID_SIGMA_DEG = 1.0
 YAW_AID_DRIFT_DEG, YAW_AID_DRIFT_TAU_S = 1.0, 60.0
@@ -84,6 +87,10 @@ def sensor_errors(seed: int, row: str):
     from ahrsd.simulation import SensorErrors
 
     err = SensorErrors.adis16405(seed)
+    if row == "receiver errors 0, noise 0":
+        return err.replace(gyro_noise_density_rad_s_rthz=0.0, accel_noise_density_m_s2_rthz=0.0,
+                           mag_noise_density_ut_rthz=0.0, gyro_bias_instability_rad_s=0.0,
+                           accel_bias_instability_m_s2=0.0)
     if not row.startswith("turn-on 0"):
         return err
     zero = {name: np.zeros_like(getattr(err, name)) for name in (
@@ -129,11 +136,11 @@ def _fuse_truth_heading(est, heading_error_rad: float, sigma_rad: float) -> None
 
 
 def gnss_errors(row: str):
-    """The receiver's errors for `row`: the benches' (vehicle_accuracy.GNSS_ERRORS), or for "receiver errors 0" none,
-    with the same reported accuracies (None: the benches' own)."""
+    """The receiver's errors for `row`: the benches' (vehicle_accuracy.GNSS_ERRORS), or for the "receiver errors 0"
+    rows none, with the same reported accuracies (None: the benches' own)."""
     from ahrsd.simulation import GnssErrors
 
-    if row != "receiver errors 0":
+    if not row.startswith("receiver errors 0"):
         return None
     return GnssErrors(horizontal_m=0.0, vertical_m=0.0, velocity_m_s=0.0, h_acc_m=GNSS_ERRORS["horizontal_m"],
                       v_acc_m=GNSS_ERRORS["vertical_m"], s_acc_m_s=GNSS_ERRORS["velocity_m_s"])

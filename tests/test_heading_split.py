@@ -104,3 +104,22 @@ def test_receiver_errors_0_gives_the_true_velocity_with_the_same_stated_accuracy
     assert np.max(np.abs(velocity_error(clean.fixes))) < 1e-6
     assert np.sqrt(np.mean(velocity_error(noisy.fixes) ** 2)) > 0.02
     assert {f.s_acc_m_s for f in clean.fixes} == {f.s_acc_m_s for f in noisy.fixes} == {0.05}
+
+
+def test_the_noiseless_row_removes_every_draw_of_noise_and_keeps_the_turn_on_errors():
+    # "receiver errors 0, noise 0" (session 42, gyroz): the sensor's white noise and in-run bias processes are 0, its
+    # turn-on errors the simulator's own, and the fixes carry no error but say the benches' accuracies
+    from bench.heading_split import gnss_errors
+    from bench.vehicle_accuracy import GNSS_ERRORS
+
+    row = "receiver errors 0, noise 0"
+    sim, quiet = SensorErrors.adis16405(12), sensor_errors(12, row)
+    for name in ("gyro_noise_density_rad_s_rthz", "accel_noise_density_m_s2_rthz", "mag_noise_density_ut_rthz",
+                 "gyro_bias_instability_rad_s", "accel_bias_instability_m_s2"):
+        assert getattr(quiet, name) == 0.0 < getattr(sim, name), name
+    for name in (*TURN_ON, "hard_iron_ut", "soft_iron"):
+        assert np.array_equal(getattr(quiet, name), getattr(sim, name)), name
+    receiver = gnss_errors(row)
+    assert (receiver.horizontal_m, receiver.vertical_m, receiver.velocity_m_s) == (0.0, 0.0, 0.0)
+    assert (receiver.h_acc_m, receiver.v_acc_m, receiver.s_acc_m_s) == (
+        GNSS_ERRORS["horizontal_m"], GNSS_ERRORS["vertical_m"], GNSS_ERRORS["velocity_m_s"])

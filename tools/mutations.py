@@ -1479,4 +1479,22 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("wmmerr-option-ignored", "mag_wmm_declination_error False leaves c0 at the calibration's own figure",
              "estimator/mag_error_states.py", "if not p.mag_wmm_declination_error or field is None:",
              "if field is None:", ("tests/test_wmm_declination_error.py",)),
+    # ------------------------------------------------------------------ session 42 (gyroz)
+    Mutation("gyroz-noiseless-keeps-arw", "bench/heading_split.py's row \"receiver errors 0, noise 0\" removes the "
+             "gyro's white noise (with the other noise terms), its turn-on errors kept",
+             "bench/heading_split.py",
+             "        return err.replace(gyro_noise_density_rad_s_rthz=0.0, accel_noise_density_m_s2_rthz=0.0,",
+             "        return err.replace(accel_noise_density_m_s2_rthz=0.0,",
+             ("tests/test_heading_split.py",)),
+    Mutation("gyroz-noiseless-keeps-in-run", "bench/heading_split.py's row \"receiver errors 0, noise 0\" removes "
+             "the gyro's in-run bias process",
+             "bench/heading_split.py",
+             "                           mag_noise_density_ut_rthz=0.0, gyro_bias_instability_rad_s=0.0,",
+             "                           mag_noise_density_ut_rthz=0.0,",
+             ("tests/test_heading_split.py",)),
+    Mutation("gyroz-noiseless-keeps-receiver", "bench/heading_split.py's row \"receiver errors 0, noise 0\" takes "
+             "the receiver's errors out too",
+             "bench/heading_split.py", "    if not row.startswith(\"receiver errors 0\"):",
+             "    if row != \"receiver errors 0\":",
+             ("tests/test_heading_split.py",)),
 )
