@@ -19,7 +19,13 @@ sample kept) once per row:
   neither           both: no gyro misalignment in the sensor, no misalignment states in the filter;
   calibrated        the same sensor with a calibrated magnetometer (the simulator's exact iron removed);
   sensor lean = 0   the accelerometer z axis's lean towards x and y (m_zx, m_zy) removed from the sensor;
-  gyro m prior 0.1° the filter's gyro misalignment prior at the simulated sensor's 0.1° (it is 0.2°).
+  gyro m prior 0.1° the filter's gyro misalignment prior at the simulated sensor's 0.1° (it is 0.2°);
+  IMU perfect       the gyro and accelerometer without any error (SensorErrors.ideal's), the magnetometer and the
+                    receiver as simulated: what the receiver's errors alone leave;
+  IMU perfect, velocity noise 0
+                    and the receiver's velocity without its white noise (its reported accuracy kept);
+  IMU perfect, horizontal velocity noise 0
+                    the same, the noise taken out of the north and east velocity only (the down velocity keeps it).
 Per seed and row: heading and tilt RMS from 180 s, the mean pitch and roll errors from 180 s, the forward
 accelerometer-bias error expressed as a pitch ((b̂_x − b_x)/g, from 180 s: the pair cancels when it is −pitch),
 the median published pitch σ, and the share of heading errors beyond 3σ from 30 s; then the mean pitch error over
@@ -32,6 +38,7 @@ rotation (the forward bias as a pitch, the accelerometer's m_zx, the x gyro's m_
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import sys
@@ -43,12 +50,13 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.vehicle_accuracy import (HONESTY_IRONS, euler_errors_deg, honesty_site, honesty_site_arg,  # noqa: E402
+from bench.vehicle_accuracy import (GNSS_ERRORS, HONESTY_IRONS, euler_errors_deg, honesty_site, honesty_site_arg,  # noqa: E402
                                     simulate_vehicle, tilt_heading_errors_deg)
 
 EVERY = 8
 ROWS = ("defaults", "m_xz,m_yz truth", "accel bias truth", "sensor m = 0", "no m states", "neither", "calibrated",
-        "sensor lean = 0", "gyro m prior 0.1°")
+        "sensor lean = 0", "gyro m prior 0.1°", "IMU perfect", "IMU perfect, velocity noise 0",
+        "IMU perfect, horizontal velocity noise 0")
 G_M_S2 = 9.80665
 
 
@@ -63,6 +71,34 @@ def _hold(est, index: int, value: float, var: float) -> None:
     est._P[index, :] = 0.0
     est._P[:, index] = 0.0
     est._P[index, index] = var
+
+
+def perfect_imu(errors):
+    """`errors` with the gyro's and the accelerometer's every error removed (SensorErrors.ideal's), the
+    magnetometer's kept."""
+    from ahrsd.simulation import SensorErrors
+
+    ideal = SensorErrors.ideal()
+    names = [n for n in vars(ideal) if n.startswith(("gyro_", "accel_"))]
+    return errors.replace(**{n: getattr(ideal, n) for n in names})
+
+
+def quiet_velocity_receiver():
+    """The benches' receiver (vehicle_accuracy.GNSS_ERRORS) without the white noise on its velocity, reporting the
+    same speed accuracy: its position errors are drawn as before."""
+    from ahrsd.simulation import GnssErrors
+
+    return GnssErrors(**{**GNSS_ERRORS, "velocity_m_s": 0.0, "s_acc_m_s": GNSS_ERRORS["velocity_m_s"]})
+
+
+def with_down_velocity_of(quiet, noisy) -> list:
+    """The fixes `quiet` (no velocity noise) with the down velocity of `noisy` (the same fixes with it)."""
+    out = []
+    for q, n in zip(quiet, noisy, strict=True):
+        v = q.vel_ned_m_s.copy()
+        v[2] = n.vel_ned_m_s[2]
+        out.append(dataclasses.replace(q, vel_ned_m_s=v))
+    return out
 
 
 def unobserved_rotation_deg(errors, params) -> tuple[float, float]:
@@ -128,8 +164,14 @@ def one_run(job) -> tuple:
         ma = errors.accel_misalignment_rad.copy()
         ma[2, :2] = 0.0
         errors = errors.replace(accel_misalignment_rad=ma)
+    if row.startswith("IMU perfect"):
+        errors = perfect_imu(errors)
     mag = "calibrated" if row == "calibrated" else "uncalibrated"
     run = simulate_vehicle(scen, seconds, seed, site, mag=mag, iron=iron, errors=errors)
+    if row.endswith("velocity noise 0"):
+        quiet = simulate_vehicle(scen, seconds, seed, site, mag=mag, iron=iron, errors=errors,
+                                 gnss_errors=quiet_velocity_receiver()).fixes
+        run.fixes[:] = quiet if row == "IMU perfect, velocity noise 0" else with_down_velocity_of(quiet, run.fixes)
     params = {"init_gyro_misalignment_sigma_rad": 0.0} if row in ("no m states", "neither") else {}
     if row == "gyro m prior 0.1°":
         params = {"init_gyro_misalignment_sigma_rad": SIM_MISALIGN_SIGMA_RAD}

@@ -1451,6 +1451,18 @@ MUTATIONS: tuple[Mutation, ...] = (
              'par["mag_harmonic_residual_var_rad2"] = p.iron_harmonic_residual_share * _floor_var(p, field_ned_ut)',
              'par["mag_harmonic_residual_var_rad2"] = _floor_var(p, field_ned_ut)',
              ("tests/test_learned_floor_as_states.py",)),
+    # ------------------------------------------------------------------ session 42 (tiltstep)
+    Mutation("tiltstep-perfect-imu-keeps-accelerometer", "tilt_split's perfect IMU removes the accelerometer's errors "
+             "as well as the gyro's", "bench/tilt_split.py",
+             'names = [n for n in vars(ideal) if n.startswith(("gyro_", "accel_"))]',
+             'names = [n for n in vars(ideal) if n.startswith(("gyro_",))]', ("tests/test_tilt_receiver_noise_rows.py",)),
+    Mutation("tiltstep-quiet-receiver-reports-zero", "the quiet receiver reports the benches' speed accuracy, not "
+             "its zero noise", "bench/tilt_split.py",
+             'return GnssErrors(**{**GNSS_ERRORS, "velocity_m_s": 0.0, "s_acc_m_s": GNSS_ERRORS["velocity_m_s"]})',
+             'return GnssErrors(**{**GNSS_ERRORS, "velocity_m_s": 0.0})', ("tests/test_tilt_receiver_noise_rows.py",)),
+    Mutation("tiltstep-down-velocity-axis", "the noisy velocity put back is the down one (north and east stay quiet)",
+             "bench/tilt_split.py", "v[2] = n.vel_ned_m_s[2]", "v[:2] = n.vel_ned_m_s[:2]",
+             ("tests/test_tilt_receiver_noise_rows.py",)),
     # ------------------------------------------------------------------ session 41 (anomaly)
     Mutation("anomaly-field-not-added", "the simulator's true field is WMM's plus the field anomaly it is given",
              "simulation/stream.py", "else self.earth_field.ned_ut + self.field_anomaly_ned_ut)",
