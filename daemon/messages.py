@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from ahrsd.core.angles import STANDARD_GRAVITY_M_S2, wrap_pi
+from ahrsd.core.angles import STANDARD_GRAVITY_M_S2, wrap_pi_float
 from ahrsd.daemon.mavlink_io import mavlink
 from ahrsd.daemon.statustext_ascii import statustext_ascii
 
@@ -47,7 +47,7 @@ def heartbeat(mav_type: int, system_status: int):
 
 def attitude(est, time_boot_ms: int, yaw_true_rad: float):
     p, q, r = (float(v) for v in est.rate_body_rad_s)
-    return mavlink.MAVLink_attitude_message(time_boot_ms, est.roll_rad, est.pitch_rad, float(wrap_pi(yaw_true_rad)), p, q, r)
+    return mavlink.MAVLink_attitude_message(time_boot_ms, est.roll_rad, est.pitch_rad, wrap_pi_float(float(yaw_true_rad)), p, q, r)
 
 
 def attitude_quaternion(est, time_boot_ms: int, declination_rad: float):
@@ -70,7 +70,7 @@ def vision_position_estimate(est, usec: int, yaw_true_rad: float, reset_counter:
     if not all(math.isfinite(c) for c in cov[15:]):
         cov[15] = cov[18] = cov[20] = (math.pi / 2) ** 2   # finite "very uncertain" (ArduPilot clamps at 1.5 rad)
     return mavlink.MAVLink_vision_position_estimate_message(
-        usec, 0.0, 0.0, 0.0, est.roll_rad, est.pitch_rad, float(wrap_pi(yaw_true_rad)), cov, reset_counter & 0xFF)
+        usec, 0.0, 0.0, 0.0, est.roll_rad, est.pitch_rad, wrap_pi_float(float(yaw_true_rad)), cov, reset_counter & 0xFF)
 
 
 def _clip(value: float, lo: int, hi: int) -> int:

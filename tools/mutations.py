@@ -1378,6 +1378,19 @@ MUTATIONS: tuple[Mutation, ...] = (
              "            self._hi_fresh, self._lo_fresh = self.hi, self.lo",
              "            self._hi_fresh, self._lo_fresh = None, None",
              ("tests/test_reliability_timing.py",)),
+    # ------------------------------------------------------------------ session 42 (spicpu)
+    Mutation("spicpu-attitude-yaw-wrapped", "ATTITUDE sends the true heading wrapped to [-pi, pi), the bits numpy's "
+             "wrap gave", "daemon/messages.py",
+             "est.roll_rad, est.pitch_rad, wrap_pi_float(float(yaw_true_rad)), p, q, r)",
+             "est.roll_rad, est.pitch_rad, float(yaw_true_rad), p, q, r)", ("tests/test_message_yaw_wrap.py",)),
+    Mutation("spicpu-vpe-yaw-wrap-float", "VISION_POSITION_ESTIMATE's yaw is wrapped in float arithmetic bit for bit "
+             "as numpy's mod (x + pi) mod 2pi - pi", "daemon/messages.py",
+             "usec, 0.0, 0.0, 0.0, est.roll_rad, est.pitch_rad, wrap_pi_float(float(yaw_true_rad)),",
+             "usec, 0.0, 0.0, 0.0, est.roll_rad, est.pitch_rad, math.remainder(yaw_true_rad, 2 * math.pi),",
+             ("tests/test_message_yaw_wrap.py",)),
+    Mutation("spicpu-c-floor-period", "bench/wake_floor.py --compiled sleeps to every sample time, one period apart",
+             "bench/wake_floor.py", "        next_ns += period_ns;", "        next_ns += period_ns / 2;",
+             ("tests/test_bench_wake_floor.py",)),
     # ------------------------------------------------------------------ session 41 (rdjit)
     Mutation("rdjit-bracket-smallest-index", "the timer's smallest index a read allows is the latest sample ready by "
              "the read's start even at the bracket's latest phase (an index the clock leaves open is asked of the chip)",
