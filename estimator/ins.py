@@ -995,9 +995,9 @@ class Ins:
     def _widen_for_turn_lean(self) -> None:
         """The first fix of a start levelled on the specific force, once: levelled again on it less the turn's
         centripetal acceleration while the attitude is still the start's (within the levelling's low-pass time:
-        later the filter has levelled and checked the magnetometer over more than one sample), or its 1σ widened
-        (ins_start.first_fix_in_turn); a new attitude starts the published heading again from the filter's,
-        flagged as a yaw reset."""
+        later the filter has levelled and checked the magnetometer over more than one sample), or its tilt 1σ
+        widened (ins_start.first_fix_in_turn) and the magnetometer's yaw coupled to it (`_couple_start_yaw_to_tilt`);
+        a new attitude starts the published heading again from the filter's, flagged as a yaw reset."""
         self._levelled_on_force = False
         p = self.params
         yaw_from_mag = p.mag_enabled and self._rerun is None
@@ -1005,8 +1005,8 @@ class Ins:
         if first_fix_in_turn(self._x, self._P, self._hist, p, self._declination, yaw_from_mag, soon):
             self._published.reset()
             self._pending_flags |= int(EstimateFlags.YAW_RESET)
-        else:
-            self._couple_start_yaw_to_tilt()    # the fix widened the tilt the magnetometer's yaw was read at
+            return
+        self._couple_start_yaw_to_tilt()    # the fix widened the tilt the magnetometer's yaw was read at
 
     def _couple_start_yaw_to_tilt(self) -> None:
         """The first fix of a start (levelled on a turn's axis, or on the specific force and not levelled again),
