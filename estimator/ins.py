@@ -207,8 +207,8 @@ class InsParams(MagHeadingParams):
     error model), added once the field is known. The true field differs from WMM's by that much, fixed to north;
     with it the calibrated boat stays within 3σ under a field half a µT off WMM's. On since the start's yaw is
     coupled to its tilt at the first fix (Ins._couple_start_yaw_to_tilt): before, c0 took up the start's
-    over-confident yaw error in tests/test_ins.py's NEES (docs/gnss.md "Session 42 (wmmdef)"). False: the
-    calibration's own figure alone."""
+    over-confident yaw error in tests/test_ins.py's NEES (docs/gnss.md, "the start's yaw coupled to its tilt").
+    False: the calibration's own figure alone."""
     mag_harmonic_residual_share: float = 0.1
     """The share of the calibration's heading variance the harmonics do not hold (a boat's heel and a plane's
     bank turn the field against the calibration's levelled one: error that changes in seconds), fused as noise
@@ -1014,7 +1014,8 @@ class Ins:
         heading only before the first fix), so the yaw's 1σ says the field's heading error alone while the yaw is
         off by the tilt's error through the dip as well (the fix widened the tilt to what levelling cannot exclude,
         not the yaw); from here on the row carries the tilt, so P must say that the yaw's error is the tilt's
-        through the dip (ins_start.couple_yaw_to_tilt, docs/estimator.md "startsig", "Session 42 (wmmdef)")."""
+        through the dip (ins_start.couple_yaw_to_tilt; docs/estimator.md "startsig" and "the start's yaw coupled
+        to its tilt")."""
         if not (self.params.mag_enabled and self._rerun is None):
             return
         row = tilt_through_dip_row(self._x["q"], self._x["mag_last_ut"])
