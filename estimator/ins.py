@@ -1006,6 +1006,8 @@ class Ins:
             self._published.reset()
             self._pending_flags |= int(EstimateFlags.YAW_RESET)
             return
+        if self._heading.confirmation.calibration_untrusted:
+            return      # the yaw's 1σ is the untrusted calibration's (up to π), a GNSS yaw aligns it (start_rerun.py)
         self._couple_start_yaw_to_tilt()    # the fix widened the tilt the magnetometer's yaw was read at
 
     def _couple_start_yaw_to_tilt(self) -> None:

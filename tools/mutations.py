@@ -1485,6 +1485,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("wmmdef-widen-tilt-only", "the first fix widens the tilt to the lean (the yaw follows by the coupling)",
              "estimator/ins_start.py", "        restart_uncorrelated(P, i, lean_rad ** 2)",
              "        restart_uncorrelated(P, i, P[i, i])", ("tests/test_turning_start_first_fix.py",)),
+    Mutation("wmmdef-untrusted-start-not-coupled", "an untrusted calibration's start (its yaw 1σ up to π, aligned to "
+             "the GNSS yaw later) is not coupled at the first fix", "estimator/ins.py",
+             "        if self._heading.confirmation.calibration_untrusted:", "        if False:",
+             ("tests/test_iron_learning_confirmed_heading.py",)),
     Mutation("wmmdef-term-on-by-default", "WMM's declination error is in c0's prior by default",
              "estimator/ins.py", "    mag_wmm_declination_error: bool = True",
              "    mag_wmm_declination_error: bool = False", ("tests/test_wmm_declination_error.py",)),
