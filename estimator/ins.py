@@ -201,14 +201,14 @@ class InsParams(MagHeadingParams):
     """The share of the calibration's heading variance given to the constant term c0 (the rest to the once- and
     twice-per-turn terms, mag_harmonics.prior_variances_rad2): chosen on in-sample seeds, checked held-out
     (docs/figures.md "A calibrated magnetometer's heading error as states")."""
-    mag_wmm_declination_error: bool = False
+    mag_wmm_declination_error: bool = True
     """True: a calibration's north-fixed heading offset state c0 (`mag_harmonic_states`) also carries WMM's own
     declination error at the filter's WMM field: its prior variance gains σ_D² (wmm_declination_error.py, WMM2025's
     error model), added once the field is known. The true field differs from WMM's by that much, fixed to north;
-    with it the calibrated boat stays within 3σ under a field half a µT off WMM's. Off by default: in the
-    model-matched level turns of tests/test_ins.py's NEES c0 then takes up the start's yaw error at far more than
-    its stated σ (docs/estimator.md "WMM's declination error as the calibration's offset"). False: the
-    calibration's own figure alone."""
+    with it the calibrated boat stays within 3σ under a field half a µT off WMM's. On since the start's yaw is
+    coupled to its tilt at the first fix (Ins._couple_start_yaw_to_tilt): before, c0 took up the start's
+    over-confident yaw error in tests/test_ins.py's NEES (docs/gnss.md, "the start's yaw coupled to its tilt").
+    False: the calibration's own figure alone."""
     mag_harmonic_residual_share: float = 0.1
     """The share of the calibration's heading variance the harmonics do not hold (a boat's heel and a plane's
     bank turn the field against the calibration's levelled one: error that changes in seconds), fused as noise
@@ -995,9 +995,9 @@ class Ins:
     def _widen_for_turn_lean(self) -> None:
         """The first fix of a start levelled on the specific force, once: levelled again on it less the turn's
         centripetal acceleration while the attitude is still the start's (within the levelling's low-pass time:
-        later the filter has levelled and checked the magnetometer over more than one sample), or its 1σ widened
-        (ins_start.first_fix_in_turn); a new attitude starts the published heading again from the filter's,
-        flagged as a yaw reset."""
+        later the filter has levelled and checked the magnetometer over more than one sample), or its tilt 1σ
+        widened (ins_start.first_fix_in_turn) and the magnetometer's yaw coupled to it (`_couple_start_yaw_to_tilt`);
+        a new attitude starts the published heading again from the filter's, flagged as a yaw reset."""
         self._levelled_on_force = False
         p = self.params
         yaw_from_mag = p.mag_enabled and self._rerun is None
@@ -1005,13 +1005,19 @@ class Ins:
         if first_fix_in_turn(self._x, self._P, self._hist, p, self._declination, yaw_from_mag, soon):
             self._published.reset()
             self._pending_flags |= int(EstimateFlags.YAW_RESET)
+            return
+        if self._heading.confirmation.calibration_untrusted:
+            return      # the yaw's 1σ is the untrusted calibration's (up to π), a GNSS yaw aligns it (start_rerun.py)
+        self._couple_start_yaw_to_tilt()    # the fix widened the tilt the magnetometer's yaw was read at
 
     def _couple_start_yaw_to_tilt(self) -> None:
-        """The first fix of a start levelled on a turn's axis, its yaw from the magnetometer: until now the heading
-        row had no tilt part (ins_core `_mag_heading_row`: heading only before the first fix), so the yaw's 1σ says
-        the field's heading error alone while the yaw is off by the tilt's error through the dip as well; from here
-        on the row carries the tilt, so P must say that the yaw's error is the tilt's through the dip
-        (ins_start.couple_yaw_to_tilt, docs/estimator.md "startsig")."""
+        """The first fix of a start (levelled on a turn's axis, or on the specific force and not levelled again),
+        its yaw from the magnetometer: until now the heading row had no tilt part (ins_core `_mag_heading_row`:
+        heading only before the first fix), so the yaw's 1σ says the field's heading error alone while the yaw is
+        off by the tilt's error through the dip as well (the fix widened the tilt to what levelling cannot exclude,
+        not the yaw); from here on the row carries the tilt, so P must say that the yaw's error is the tilt's
+        through the dip (ins_start.couple_yaw_to_tilt; docs/estimator.md "startsig" and "the start's yaw coupled
+        to its tilt")."""
         if not (self.params.mag_enabled and self._rerun is None):
             return
         row = tilt_through_dip_row(self._x["q"], self._x["mag_last_ut"])

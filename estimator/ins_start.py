@@ -138,30 +138,17 @@ def centripetal_levelling_force(a, rate_rad_s, speed_m_s: float) -> np.ndarray |
     return fc
 
 
-def field_dip_rad(q, m) -> float:
-    """The field's dip in the filter's frame (NaN without a field)."""
-    mv = np.asarray(m, dtype=float)
-    if not (np.all(np.isfinite(mv)) and float(np.linalg.norm(mv)) > 0.0):
-        return math.nan
-    m_n = np.asarray(quat_to_dcm(q), dtype=float) @ mv
-    return math.atan2(float(m_n[2]), math.hypot(float(m_n[0]), float(m_n[1])))
-
-
-def widen_for_lean(P: np.ndarray, lean_rad: float, dip_rad: float, use_mag: bool) -> bool:
+def widen_for_lean(P: np.ndarray, lean_rad: float) -> bool:
     """A start levelled on the specific force, at its first fix: the tilt 1σ at least the `lean_rad` the fix
-    tells (`first_fix_lean`), and, when the magnetometer set the yaw at that tilt, the yaw 1σ at least what the
-    lean tips the field's heading by, tan(dip)·lean (up to π), each restarted uncorrelated (as
-    `initial_covariance`). Levelling updates before the fix took the lean for the vertical and the magnetometer
-    read the heading at it, so neither knows it: without this the GNSS velocity, fused through a confident wrong
-    yaw, pulls the tilt further off. True when it widened."""
+    tells (`first_fix_lean`), restarted uncorrelated (as `initial_covariance`). Levelling updates before the fix
+    took the lean for the vertical, so they do not know it: without this the GNSS velocity, fused through a
+    confident wrong yaw, pulls the tilt further off. The magnetometer's yaw, read at that tilt, is off by the
+    tilt's error through the dip: the filter couples it to the tilt after this (`couple_yaw_to_tilt`), which
+    puts tan(dip)·lean into its 1σ, correlated with the tilt. True when it widened."""
     if not lean_rad > math.sqrt(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])):
         return False
     for i in (core.E_TILT_N, core.E_TILT_E):
         restart_uncorrelated(P, i, lean_rad ** 2)
-    if use_mag:
-        through_dip = min(math.pi, abs(math.tan(dip_rad)) * lean_rad) if math.isfinite(dip_rad) else math.pi
-        if through_dip ** 2 > P[core.E_YAW, core.E_YAW]:
-            restart_uncorrelated(P, core.E_YAW, through_dip ** 2)
     return True
 
 
@@ -251,9 +238,9 @@ def first_fix_in_turn(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigma
     turn that force leaned by the centripetal ω × v, which the fix's speed now tells. Levelled again on the force
     less it (`centripetal_levelling_force`, `level_again`) when that explains the force's norm, moves the vertical
     by more than the tilt 1σ, the magnetometer gives the heading at the new tilt and `may_level_again` (the
-    attitude is still the start's); otherwise the tilt (and the
-    magnetometer's yaw) 1σ widened to the lean it cannot exclude (`first_fix_lean`, `widen_for_lean`). True when
-    the attitude was levelled again."""
+    attitude is still the start's); otherwise the tilt 1σ widened to the lean it cannot exclude (`first_fix_lean`,
+    `widen_for_lean`; the filter then couples the magnetometer's yaw to it). True when the attitude was levelled
+    again."""
     rate = x["gyro_last_rad_s"] - x["gyro_bias_rad_s"]
     f = np.asarray(x["acc_last_m_s2"], dtype=float)
     m = np.asarray(x["mag_last_ut"], dtype=float)
@@ -262,8 +249,7 @@ def first_fix_in_turn(x: np.void, P: np.ndarray, hist: np.ndarray, p: StartSigma
             and _angle_rad(f, fc) > p.init_sigma_tilt_rad):
         level_again(x, P, hist, p, fc, m, declination_rad)
         return True
-    lean = first_fix_lean(x["q"], rate, x["vel_ned_m_s"], f)
-    widen_for_lean(P, lean, field_dip_rad(x["q"], m), yaw_from_mag)
+    widen_for_lean(P, first_fix_lean(x["q"], rate, x["vel_ned_m_s"], f))
     return False
 
 
@@ -364,5 +350,5 @@ def initial_covariance(P: np.ndarray, p: StartSigmas, use_mag: bool, lean: Start
 
 
 __all__ = ["LearnedErrors", "StartLean", "StartSigmas", "axis_levelling_sigma_rad", "carry_over_fix_delay", "couple_yaw_to_tilt", "centripetal_levelling_force", "first_history_row", "fresh_state", "initial_covariance",
-           "field_dip_rad", "first_fix_in_turn", "first_fix_lean", "initial_true_attitude", "learned_to_keep", "level_again", "levelling_force", "levelling_lean",
+           "first_fix_in_turn", "first_fix_lean", "initial_true_attitude", "learned_to_keep", "level_again", "levelling_force", "levelling_lean",
            "start_mag_reference", "start_sensor_errors", "tilt_through_dip_row", "widen_for_lean"]

@@ -78,9 +78,11 @@ class Run:
 
 
 def simulated_run(scenario, seconds, rate_hz=200.0, seed=1, errors="adis16405", earth_rate=True,
-                  earth="wgs84") -> Run:
-    """The scenario's truth track as geodetic position on `earth` ("wgs84" or "sphere")."""
-    stream = open_stream(scenario, rate_hz=rate_hz, seed=seed, errors=errors, earth_rate=earth_rate)
+                  earth="wgs84", field_anomaly_ned_ut=None) -> Run:
+    """The scenario's truth track as geodetic position on `earth` ("wgs84" or "sphere"); the true Earth field
+    WMM's plus `field_anomaly_ned_ut` (simulation.open_stream; None: WMM's)."""
+    stream = open_stream(scenario, rate_hz=rate_hz, seed=seed, errors=errors, earth_rate=earth_rate,
+                         field_anomaly_ned_ut=field_anomaly_ned_ut)
     b = stream.next_block(int(round(seconds * rate_hz)))
     e = stream.errors
     mag = (np.linalg.inv(e.soft_iron) @ (b.mag_ut - e.hard_iron_ut).T).T   # the daemon feeds a calibrated field

@@ -141,13 +141,17 @@ def test_nees_of_attitude_velocity_and_position_within_chi_square_bounds():
     gyro/accelerometer noise at the filter's densities, constant turn-on biases, gyro scale factors and
     misalignments drawn from the filter's priors, white GNSS noise at the reported accuracies, and a field
     without disturbances or calibration residuals — so the magnetometer heading floor, which allows for those
-    (0.12 rad), is mekf's floor at rest (0.03 rad). For each 3-dof block (δθ, δv, δp) the NEES is averaged
+    (0.12 rad), is mekf's floor at rest (0.03 rad) — whose declination is off WMM's by a draw from WMM2025's
+    declination error (σ_D = sqrt(0.26² + (5417 nT / H)²)°, the technical report's error model, written out here:
+    the filter's `mag_wmm_declination_error` prior). For each 3-dof block (δθ, δv, δp) the NEES is averaged
     over 6 runs × 6 times (10 s apart after 60 s, taken as independent): a consistent filter puts 36·mean
     inside the 99 % two-sided interval of χ²(108), i.e. mean ∈ [2.05, 4.16]."""
     from scipy.stats import chi2    # here, not at the top: every collection of the suite would import scipy.stats
 
     p = DEFAULT_INS_PARAMS
     lo, hi = chi2.ppf([0.005, 0.995], 3 * 36) / 36
+    field = ins_truth.DEFAULT_SITE.earth_field()
+    sigma_d_rad = math.radians(math.hypot(0.26, 5417.0 / (1000.0 * math.hypot(field.north_ut, field.east_ut))))
     nees = {"att": [], "vel": [], "pos": []}
     for seed in range(6):
         rng = np.random.default_rng(seed)
@@ -160,8 +164,12 @@ def test_nees_of_attitude_velocity_and_position_within_chi_square_bounds():
             accel_bias_m_s2=rng.normal(0.0, 0.05, 3),
             accel_noise_density_m_s2_rthz=p.accel_noise_m_s2_sqrt_hz,
             mag_noise_density_ut_rthz=0.125 / math.sqrt(819.2))
+        d = rng.normal(0.0, sigma_d_rad)       # the true field: WMM's horizontal part turned by d about down
+        off_wmm = [field.north_ut * (math.cos(d) - 1.0) - field.east_ut * math.sin(d),
+                   field.north_ut * math.sin(d) + field.east_ut * (math.cos(d) - 1.0), 0.0]
         # up to the last sampled time (110 s) and its sample: a longer run adds no NEES sample
-        run = simulated_run("level-turns", 110.0 + 1.0 / 200.0, rate_hz=200.0, seed=seed, errors=err)
+        run = simulated_run("level-turns", 110.0 + 1.0 / 200.0, rate_hz=200.0, seed=seed, errors=err,
+                            field_anomaly_ned_ut=off_wmm)
         est = Ins(declination_rad=DECLINATION, mag_calibration_sigma_rad=0.0, mag_heading_noise_rad=p.mag_heading_noise_rest_rad,
                   )
         # the estimate read at the covariance's samples only (the NEES reads no other): the rest are stepped
@@ -211,8 +219,10 @@ def test_gyro_scale_factor_is_learned_in_turns_and_off_gives_the_15_state_filter
 def test_gyro_misalignment_is_learned_in_turns_and_levels_the_horizon():
     """x and y gyros leaning ±0.3° towards z (and y 0.2° towards x, z 0.2° towards x), white noise otherwise: in
     the banked turns the yaw rate leaks into the roll and pitch rates, a tilt drift the GNSS must keep correcting.
-    The six misalignment states learn the two leaning towards z to 0.05° and halve the tilt error (measured
-    0.10° against 0.36° with them frozen)."""
+    The six misalignment states learn the two leaning towards z to 0.06° and halve the tilt error (measured
+    0.10° against 0.36° with them frozen). The x lean's error wanders with the run's length: 0.047° at 200 s and
+    0.054° at 250 s without WMM's declination error in c0's prior, 0.051° and 0.056° with it (docs/testing.md
+    "Session 42 (wmmdef)")."""
     mis = np.zeros((3, 3))
     mis[0, 2], mis[1, 2], mis[1, 0], mis[2, 0] = np.radians([0.3, -0.3, 0.2, 0.2])
     run, fixes, m = _banked_turns_with_gyro_error(gyro_misalignment_rad=mis)
@@ -221,7 +231,7 @@ def test_gyro_misalignment_is_learned_in_turns_and_levels_the_horizon():
     frozen = Ins(declination_rad=DECLINATION, **CALIBRATED, init_gyro_misalignment_sigma_rad=0.0)
     res_frozen = run_ins(frozen, run, fixes, estimates_every=EVERY)
     est = learned.gyro_misalignment_rad
-    assert abs(est[0, 2] - mis[0, 2]) < math.radians(0.05) and abs(est[1, 2] - mis[1, 2]) < math.radians(0.05), \
+    assert abs(est[0, 2] - mis[0, 2]) < math.radians(0.06) and abs(est[1, 2] - mis[1, 2]) < math.radians(0.06), \
         np.degrees(est)
     assert np.all(np.diag(est) == 0.0) and np.all(frozen.gyro_misalignment_rad == 0.0)
     tilt, _ = _errors(res, run, m)

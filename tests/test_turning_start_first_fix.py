@@ -131,14 +131,17 @@ def test_the_lean_the_first_fix_tells():
     assert first_fix_lean(q, np.array([0.3, 0.0, 0.0]), v, np.array([0.0, 0.0, -G_M_S2])) < 1e-9
 
 
-def test_widening_covers_the_lean_and_its_heading_through_the_dip():
+def test_widening_covers_the_lean_and_leaves_the_yaw_to_the_coupling():
+    """The tilt 1σ widened to the lean; the yaw is not widened here (the filter couples it to the widened tilt
+    through the dip next: ins_start.couple_yaw_to_tilt, tests/test_start_yaw_at_first_fix.py)."""
     P = np.eye(core.N_ERR) * math.radians(1.0) ** 2
     P[core.E_TILT_N, core.E_YAW] = P[core.E_YAW, core.E_TILT_N] = 1e-6
-    lean, dip = math.radians(20.0), math.radians(75.0)
-    assert widen_for_lean(P, lean, dip, True)
+    lean = math.radians(20.0)
+    assert widen_for_lean(P, lean)
     assert math.sqrt(P[core.E_TILT_N, core.E_TILT_N]) == pytest.approx(lean)
-    assert math.sqrt(P[core.E_YAW, core.E_YAW]) == pytest.approx(min(math.pi, math.tan(dip) * lean))
+    assert math.sqrt(P[core.E_TILT_E, core.E_TILT_E]) == pytest.approx(lean)
+    assert P[core.E_YAW, core.E_YAW] == math.radians(1.0) ** 2
     assert P[core.E_TILT_N, core.E_YAW] == 0.0
     small = np.eye(core.N_ERR) * math.radians(10.0) ** 2
-    assert not widen_for_lean(small, math.radians(5.0), dip, True)
+    assert not widen_for_lean(small, math.radians(5.0))
     assert small[core.E_TILT_N, core.E_TILT_N] == pytest.approx(math.radians(10.0) ** 2)

@@ -1068,9 +1068,11 @@ MUTATIONS: tuple[Mutation, ...] = (
              "estimator/ins_start.py",
              "    if not lean_rad > math.sqrt(max(P[core.E_TILT_N, core.E_TILT_N], P[core.E_TILT_E, core.E_TILT_E])):",
              "    if True:", ("tests/test_turning_start_first_fix.py",)),
+    # re-targeted in session 42 (wmmdef): the yaw follows the widened tilt through the coupling (its own
+    # widening, uncorrelated, is gone)
     Mutation("hold-first-fix-widens-yaw", "the widening carries the lean through the dip to the magnetometer's yaw",
-             "estimator/ins_start.py", "            restart_uncorrelated(P, core.E_YAW, through_dip ** 2)",
-             "            pass", ("tests/test_turning_start_first_fix.py",)),
+             "estimator/ins.py", "        self._couple_start_yaw_to_tilt()    # the fix widened the tilt",
+             "        pass    # the fix widened the tilt", ("tests/test_start_yaw_at_first_fix.py",)),
     Mutation("hold-level-again-velocity-delay", "levelled again, the velocity is carried over the fix's delay",
              "estimator/ins_start.py", "    if 0.0 < delay_s < math.inf:", "    if False:",
              ("tests/test_turning_start_first_fix.py",)),
@@ -1522,4 +1524,15 @@ MUTATIONS: tuple[Mutation, ...] = (
              "bench/heading_split.py", "    if not row.startswith(\"receiver errors 0\"):",
              "    if row != \"receiver errors 0\":",
              ("tests/test_heading_split.py",)),
+    # ------------------------------------------------------------------ session 42 (wmmdef)
+    Mutation("wmmdef-widen-tilt-only", "the first fix widens the tilt to the lean (the yaw follows by the coupling)",
+             "estimator/ins_start.py", "        restart_uncorrelated(P, i, lean_rad ** 2)",
+             "        restart_uncorrelated(P, i, P[i, i])", ("tests/test_turning_start_first_fix.py",)),
+    Mutation("wmmdef-untrusted-start-not-coupled", "an untrusted calibration's start (its yaw 1σ up to π, aligned to "
+             "the GNSS yaw later) is not coupled at the first fix", "estimator/ins.py",
+             "        if self._heading.confirmation.calibration_untrusted:", "        if False:",
+             ("tests/test_iron_learning_confirmed_heading.py",)),
+    Mutation("wmmdef-term-on-by-default", "WMM's declination error is in c0's prior by default",
+             "estimator/ins.py", "    mag_wmm_declination_error: bool = True",
+             "    mag_wmm_declination_error: bool = False", ("tests/test_wmm_declination_error.py",)),
 )
