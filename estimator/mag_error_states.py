@@ -23,11 +23,12 @@ from .mag_error_restarts import (IRON_HARMONIC_YAWS_RAD, calibration_harmonics_p
 from .wmm_declination_error import wmm_declination_sigma_rad
 
 
-def learned_floor_var_rad2(p, h2_ut2: float) -> float:
+def learned_floor_var_rad2(p, h2_ut2: float, share: float = 1.0) -> float:
     """The floor of a learned magnetometer's heading variance at a horizontal field of h2 (µT²), rad²: what no
     learned iron explains (`iron_unmodelled_ut`) over the field, at most the calibration's own figure. `p`: the
-    InsParams in force."""
-    return min(p.calibration_sigma_rad ** 2, p.iron_unmodelled_ut ** 2 / h2_ut2)
+    InsParams in force; `share`: the part of the unexplained variance counted (slow_floor.py: what is left of it
+    over a trust window); the calibration's own figure is never scaled."""
+    return min(p.calibration_sigma_rad ** 2, share * p.iron_unmodelled_ut ** 2 / h2_ut2)
 
 
 def harmonics_source(p, *, calibration_untrusted: bool, iron_learned: bool, ever_aided: bool, iron_learning: bool,

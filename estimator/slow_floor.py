@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import math
 
+from .mag_error_states import learned_floor_var_rad2
+
 
 def time_average_share(corr_s: float, window_s: float) -> float:
     """The share of a first-order Gauss–Markov error's variance left in its mean over `window_s` (s), its
@@ -39,5 +41,4 @@ def slow_floor_var_rad2(p, h2_ut2: float, window_s: float) -> float:
     """The learned magnetometer's floor over the trust window `window_s` (s), rad²: `iron_unmodelled_ut` over the
     horizontal field (h2, µT²) times `time_average_share(iron_tau_s, window_s)`, at most the calibration's own
     figure. `p`: the InsParams in force."""
-    share = time_average_share(p.iron_tau_s, window_s)
-    return min(p.calibration_sigma_rad ** 2, share * p.iron_unmodelled_ut ** 2 / h2_ut2)
+    return learned_floor_var_rad2(p, h2_ut2, time_average_share(p.iron_tau_s, window_s))
