@@ -164,13 +164,13 @@ def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe():
     h = process_source._Handover(child_end, src, room=lambda: room[0])
     for _ in range(5):
         src.read(3)
-        h.next_send = 0.0
+        h.plan.latest_s = 0.0
         h.maybe_send()
     assert not daemon_end.poll(0)                            # nothing sent while the pipe had no room
     room[0] = True
-    h.next_send = 0.0
+    h.plan.latest_s = 0.0
     h.maybe_send()
-    h.next_send = 0.0
+    h.plan.latest_s = 0.0
     h.maybe_send()
     got = []
     while daemon_end.poll(0.2):
@@ -367,7 +367,7 @@ def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_
     def ticks(n):
         for _ in range(n):
             before = end.samples_messages
-            h.next_send = 0.0
+            h.plan.latest_s = 0.0
             h.maybe_send()
             per_tick.append(end.samples_messages - before)
 
