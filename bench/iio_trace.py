@@ -88,6 +88,17 @@ def install() -> None:
             LONG.append((t0, t1, getattr(cb, "__qualname__", repr(cb))[:80]))
 
     asyncio.events.Handle._run = traced_run
+    import gc
+
+    started: list = [0.0]
+
+    def gc_pause(phase, info):           # the collector's pauses, in whichever thread allocated
+        if phase == "start":
+            started[0] = _now()
+        elif _now() - started[0] > LONG_S:
+            LONG.append((started[0], _now(), f"gc generation {info['generation']}"))
+
+    gc.callbacks.append(gc_pause)
 
 
 def main() -> int:
@@ -167,6 +178,9 @@ def stage_table(trace: dict, vpe: list[tuple[int, float]], t0: float, t1: float)
     names: dict[str, list[float]] = {}
     for a, b, name in longs:
         names.setdefault(name, []).append((b - a) * 1e3)
+    for a, b, name in longs:
+        if b - a > 0.02:
+            lines.append(f"     longer than 20 ms: {name[:50]} {1e3 * (b - a):.1f} ms at {a - t0:.1f} s in the window")
     for name, ms in sorted(names.items(), key=lambda kv: -sum(kv[1]))[:6]:
         lines.append(f"     loop callback > 0.5 ms: {name[:50]:50s} {len(ms) / (t1 - t0):6.2f}/s  "
                      f"max {max(ms):6.2f} ms")

@@ -46,6 +46,7 @@ from ahrsd.drivers.errors import FrameError
 from ahrsd.drivers.handover_plan import HANDOVER_MAX_S, HandoverPlan
 from ahrsd.drivers.read_failures import ReadFailures
 from ahrsd.drivers.source_interface import LiveSource, WaitingSource
+from ahrsd.drivers.timerfd import TimerFd
 
 log = logging.getLogger(__name__)
 
@@ -163,11 +164,12 @@ class ThreadedSource(LiveSource):
         self._last_delivered: int | None = None
         self.after_read = None     # called by the reader thread between reads (drivers.process_source's hand-over)
         self._plan = HandoverPlan(HANDOVER_MAX_S)
-        self._told = threading.Event()           # hand_over_by told a deadline earlier than the reader's wait
-        self._waiting_until = math.inf           # when the block reader's wait ends (inf: it is not waiting)
+        self._waiting_until = math.inf           # when the block reader's timer expires (inf: it is not waiting)
+        self._timer: TimerFd | None = None       # what the block reader waits on; hand_over_by moves it sooner
         if not inner.per_sample:
             # the daemon polls when this becomes readable (daemon.sample_reader `ready_fd`), not on a fixed tick
             self.ready_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+            self._timer = TimerFd()
             self.handover_max_s = HANDOVER_MAX_S
             self.stats.update({"handovers": 0, "handovers_on_due": 0})
         self.log_realtime = True   # log whether SCHED_FIFO was granted (a reader process reports it instead)
@@ -233,50 +235,66 @@ class ThreadedSource(LiveSource):
         every record waiting when the daemon's next output falls due, or HANDOVER_MAX_S after the last hand-over
         (`HandoverPlan`), hand the block over and make `ready_fd` readable. One read and one wake of the event loop
         per output due, instead of a read every few ms and a daemon poll on its tick (docs/daemon.md
-        "Performance")."""
+        "Performance"). The thread waits on a timerfd that the daemon's `hand_over_by` arms for its deadline: one
+        wake of this thread a read (a wake to learn of the deadline and another at it cost twice the wakes)."""
         failures = ReadFailures()
-        inner, stop, told, clock, plan, stats = self.inner, self._stop, self._told, self._clock, self._plan, self.stats
+        inner, stop, clock, plan, stats, timer = self.inner, self._stop, self._clock, self._plan, self.stats, self._timer
         next_record_s = 2.0 / self.sample_rate_hz     # the longest wait for the next record after a deadline
-        readable_after = inner.readable_after
         plan.read_at(clock())
         while not stop.is_set():
-            # the order matters against hand_over_by (the event loop's thread): a deadline told before
-            # next_read_s() is in it; one told after finds _waiting_until either inf or the wait's end, and sets
-            # `told` if it is earlier, so the wait below returns at once
-            self._waiting_until = math.inf
-            told.clear()
-            target = plan.next_read_s()
-            if target == plan.due_s:
-                # the daemon's deadline: read once the chip's first sample at or after it is in the buffer, so the
-                # output goes with a sample just made, not one up to a period old (docs/daemon.md "Session 42")
-                target = readable_after(target)
-            self._waiting_until = target
-            dt = target - clock()
-            if dt > 0:
-                told.wait(dt)
-                continue
+            self._arm_next_read()
+            timer.wait()          # one wake a read: hand_over_by re-arms the timer for a deadline, never wakes it
+            if stop.is_set():
+                break
+            if clock() < self._waiting_until:
+                continue          # armed later meanwhile (cannot happen: only sooner), so not due yet
             self._waiting_until = math.inf
             on_due = plan.read_at(clock())
+            handed = False
             try:
                 with self._inner_lock:
                     samples = inner.poll()
                 # no sample from the deadline on (a latest-by read came just before it, or the record is late):
                 # the output goes with the next record, not with an older one or 25 ms later
                 if on_due and not _reaches(samples, plan.served_s) and inner.wait(next_record_s, paced=False):
+                    if len(samples):
+                        self._hand_over_block(samples)    # first: kept should the next read fail (the device gone)
+                        handed = True
                     with self._inner_lock:
-                        more = inner.poll()
-                    samples = _joined([samples, more]) if len(samples) else more
+                        samples = inner.poll()
             except Exception as exc:  # noqa: BLE001 - BusError / OSError: the source re-opens on its own
                 self._read_failed(exc, failures)
                 os.eventfd_write(self.ready_fd, 1)        # the daemon reports it at its next poll
                 continue
             stats["reads"] += 1
             failures.read_ok()
-            if len(samples):
-                self._hand_over_block(samples)
+            if len(samples) or handed:
+                if len(samples):
+                    self._hand_over_block(samples)
                 stats["handovers"] += 1
                 stats["handovers_on_due"] += on_due
                 os.eventfd_write(self.ready_fd, 1)        # the daemon's loop wakes and polls (sample_reader)
+
+    def _next_read_s(self) -> float:
+        """When the block reader reads next (HandoverPlan), a deadline's read once the chip's first sample at or
+        after it is in the buffer, so the output goes with a sample just made, not one up to a period old
+        (docs/daemon.md "Session 42 (iiop99)")."""
+        plan = self._plan
+        target = plan.next_read_s()
+        return self.inner.readable_after(target) if target == plan.due_s else target
+
+    def _arm_next_read(self) -> None:
+        """Arm the reader's timer for its next read. The order matters against hand_over_by (the event loop's
+        thread, which arms it for a deadline sooner than `_waiting_until`): a deadline told before the second look
+        is in it, one told after it sees this `_waiting_until` and arms after this arm."""
+        target = self._waiting_until = self._next_read_s()
+        self._timer.arm(target)
+        again = self._next_read_s()
+        if again < target:
+            self._waiting_until = again
+            self._timer.arm(again)
+        if self._stop.is_set():
+            self._timer.arm(0.0)       # close() armed it expired before this arm: wake to see the stop
 
     def _read_per_sample(self) -> None:
         """A per-sample source: the hand-over tick, wait for the next sample, read it, hand it over. The read is
@@ -368,9 +386,14 @@ class ThreadedSource(LiveSource):
         hands its block over then. The reader is woken only when it waits for longer."""
         if self.ready_fd is None:
             return                   # a per-sample reader hands every sample over as it reads it
-        self._plan.due_s = t
+        plan = self._plan
+        plan.due_s = t
+        if t == plan.served_s:
+            return                   # served already: the reader's next read is its latest-by one
+        t = self.inner.readable_after(t)
         if t < self._waiting_until:
-            self._told.set()
+            self._waiting_until = t
+            self._timer.arm(t)
 
     def poll(self) -> list[ImuSample]:
         if self._thread is None:
@@ -399,7 +422,8 @@ class ThreadedSource(LiveSource):
 
     def close(self) -> None:
         self._stop.set()
-        self._told.set()
+        if self._timer is not None:
+            self._timer.arm(0.0)             # expired: the block reader wakes and sees the stop
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(2.0)
         with self._lock:     # sample indices read (or lost) after the last hand-over: the chip's truth has them
@@ -415,6 +439,7 @@ class ThreadedSource(LiveSource):
         if self.ready_fd is not None and (self._thread is None or not self._thread.is_alive()):
             os.close(self.ready_fd)
             self.ready_fd = None
+            self._timer.close()
 
 
 def _rows(block: SampleBlock, n: int) -> SampleBlock:

@@ -28,6 +28,7 @@ from ahrsd.daemon.outputs import OutputSchedule
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.drivers import threaded_source
+from ahrsd.drivers.errors import BusError
 from ahrsd.drivers.source_interface import LiveSource
 from ahrsd.drivers.iio_source import READ_AFTER_EDGE_S, IioSource, next_edge_s
 from ahrsd.drivers.threaded_source import HANDOVER_MAX_S, HandoverPlan, ThreadedSource
@@ -207,6 +208,7 @@ class _Buffer(LiveSource):
         self.waits_for_next = 0
         self.base_s = 0.0          # the time stamp of record 0 (records k * PERIOD_S later)
         self.readable_s = 0.0      # how long after a time its first sample can be read (readable_after)
+        self.fails_after_wait = False   # the read after a wait for the next record fails (the device gone)
 
     def readable_after(self, t: float) -> float:
         return t + self.readable_s
@@ -216,10 +218,15 @@ class _Buffer(LiveSource):
             self.waits_for_next += 1
             self.pending += self.arriving
             self.arriving = 0
-        return self.pending > 0
+            if self.fails_after_wait:
+                self.pending = -1
+        return self.pending != 0
 
     def poll(self) -> SampleBlock:
         self.reads += 1
+        if self.pending < 0:
+            self.pending = 0
+            raise BusError("the device ended the stream")
         n, self.pending = self.pending, 0
         ks = list(range(self.k, self.k + n))
         self.k += n
@@ -266,6 +273,9 @@ def test_the_reader_thread_hands_over_on_the_deadline_told_and_wakes_the_daemon(
         assert _readable(src.ready_fd, MARGIN_S)
         block = src.poll()
         assert list(block.counter) == list(range(12)) and not _readable(src.ready_fd, 0.0)
+        assert _wait_for(lambda: src._waiting_until > _now() + 100)
+        src.hand_over_by(src._plan.served_s)               # the deadline served, told again: no read for it
+        assert src._waiting_until > _now() + 100
         for expected_on_due in (2, 3):                     # every deadline told is served once
             inner.pending = 5
             assert _wait_for(lambda: src._waiting_until > _now() + 100)
@@ -326,7 +336,7 @@ def test_a_per_sample_reader_has_no_ready_fd_and_ignores_deadlines():
                          switch_interval_s=None)
     assert src.ready_fd is None and src.handover_max_s == 0.0
     src.hand_over_by(1.0)
-    assert not src._told.is_set()
+    assert src._timer is None and src._waiting_until == math.inf
 
 
 # -- session 42: the read for a deadline waits for the chip's first sample at or after it -----------------------------
@@ -392,5 +402,39 @@ def test_a_deadline_read_that_finds_only_older_samples_waits_for_the_next_one(mo
         src.hand_over_by(_now())
         assert _readable(src.ready_fd, MARGIN_S)
         assert list(src.poll().counter) == [4, 5] and inner.waits_for_next == 1
+    finally:
+        src.close()
+
+
+def test_the_reader_reads_a_deadline_when_its_first_sample_can_be_read_and_else_at_the_latest():
+    """The block reader's next read time (`_next_read_s`, worked times, no thread): a deadline told and not served is
+    read at the source's `readable_after` of it; a served one leaves the latest-by read."""
+    inner = _Buffer()
+    inner.readable_s = 0.0009
+    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    try:
+        plan = src._plan
+        plan.read_at(100.0)                                # latest-by at 100.025
+        plan.due_s = 100.010
+        assert src._next_read_s() == pytest.approx(100.0109)
+        assert plan.read_at(100.0109) is True              # served
+        assert src._next_read_s() == pytest.approx(100.0359)
+    finally:
+        src.close()
+
+
+def test_samples_read_before_a_failed_read_for_the_next_record_are_handed_over(monkeypatch):
+    """A deadline's read finds only older samples and waits for the next record, whose read fails (the device gone):
+    the samples already read still reach the daemon (a sample the source counted is never dropped here)."""
+    monkeypatch.setattr(threaded_source, "HANDOVER_MAX_S", 1000.0)
+    inner = _Buffer()
+    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    try:
+        src.poll()
+        assert _wait_for(lambda: src._waiting_until > _now() + 900)
+        inner.pending, inner.fails_after_wait = 3, True
+        src.hand_over_by(_now())
+        assert _readable(src.ready_fd, MARGIN_S)
+        assert list(src.poll().counter) == [0, 1, 2] and src.stats["read_failures"] == 1
     finally:
         src.close()
