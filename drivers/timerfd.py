@@ -24,10 +24,13 @@ class Itimerspec(ctypes.Structure):
     _fields_ = [("it_interval", Timespec), ("it_value", Timespec)]
 
 
-def libc():
-    """The C library with timerfd_create / timerfd_settime typed, or None where it has none."""
+def libc(hold_gil: bool = False):
+    """The C library with timerfd_create / timerfd_settime typed, or None where it has none. hold_gil: its calls keep
+    the GIL (ctypes.PyDLL; CDLL releases it around each call, so a thread waiting for the GIL takes it, and the
+    caller waits to get it back: a context switch for a system call of a microsecond)."""
     try:
-        lib = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        lib = (ctypes.PyDLL if hold_gil else ctypes.CDLL)(ctypes.util.find_library("c") or "libc.so.6",
+                                                           use_errno=True)
         lib.timerfd_create.argtypes = (ctypes.c_int, ctypes.c_int)
         lib.timerfd_settime.argtypes = (ctypes.c_int, ctypes.c_int, ctypes.POINTER(Itimerspec),
                                         ctypes.POINTER(Itimerspec))
@@ -49,7 +52,7 @@ class TimerFd:
     """A blocking one-shot CLOCK_MONOTONIC timer: `arm(t)` from any thread, `wait()` in the waiting one."""
 
     def __init__(self):
-        lib = libc()
+        lib = libc(hold_gil=True)      # armed from the event loop: it keeps the GIL through the call
         fd = lib.timerfd_create(CLOCK_MONOTONIC, TFD_CLOEXEC) if lib is not None else -1
         if fd < 0:
             raise OSError(ctypes.get_errno(), "timerfd_create failed")
