@@ -174,6 +174,11 @@ def stage_table(trace: dict, vpe: list[tuple[int, float]], t0: float, t1: float)
         if s:
             slow_blocked[b or "(none: preempted, GIL)"] = slow_blocked.get(b or "(none: preempted, GIL)", 0) + 1
     lines.append(f"     slowest 1 %: the loop busy with {slow_blocked} while the block waited")
+    window = t1 - t0
+    polls = [p for p in trace["polls"] if t0 <= p[0] <= t1]
+    lines.append(f"     a second: reads {sum(t0 <= r[0] <= t1 for r in trace['reads']) / window:.1f}, hand-overs "
+                 f"{sum(t0 <= h[0] <= t1 for h in trace['handovers']) / window:.1f}, the loop's polls "
+                 f"{len(polls) / window:.1f} (empty {sum(p[2] is None for p in polls) / window:.1f})")
     longs = [c for c in trace["long"] if t0 <= c[0] <= t1]
     names: dict[str, list[float]] = {}
     for a, b, name in longs:
