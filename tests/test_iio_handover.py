@@ -104,6 +104,7 @@ class _KernelAndReader(LiveSource):
         block = [self.t0 + k * PERIOD_S for k in range(self._k_read, newest + 1)]
         self._k_read = newest + 1
         self.reads.append((now, on_due))
+        assert len(self.reads) <= 1000 * RUN_S, "the reader reads without end"     # a wrong read time: fail, not hang
         if block:
             self.loop.call_at(now + THREAD_WAKE_S, self._hand_over, block)
         self._timer = None
