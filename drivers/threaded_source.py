@@ -278,7 +278,7 @@ class ThreadedSource(LiveSource):
     def _next_read_s(self) -> float:
         """When the block reader reads next (HandoverPlan), a deadline's read once the chip's first sample at or
         after it is in the buffer, so the output goes with a sample just made, not one up to a period old
-        (docs/daemon.md "Session 42 (iiop99)")."""
+        (docs/daemon.md "Performance")."""
         plan = self._plan
         target = plan.next_read_s()
         return self.inner.readable_after(target) if target == plan.due_s else target

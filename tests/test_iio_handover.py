@@ -342,6 +342,17 @@ def test_a_per_sample_reader_has_no_ready_fd_and_ignores_deadlines():
 
 # -- session 42: the read for a deadline waits for the chip's first sample at or after it -----------------------------
 
+def _waiting_reader(monkeypatch):
+    """A started reader thread on a _Buffer, waiting for its latest-by read 1000 s on: only a deadline told makes it
+    read."""
+    monkeypatch.setattr(threaded_source, "HANDOVER_MAX_S", 1000.0)
+    inner = _Buffer()
+    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    src.poll()
+    assert _wait_for(lambda: src._waiting_until > _now() + 900)
+    return inner, src
+
+
 def test_the_next_edge_by_worked_times():
     # edges every 1 ms from 10.000 s
     assert next_edge_s(10.0035, 10.0, 0.001) == pytest.approx(10.004)
@@ -386,12 +397,8 @@ def test_the_reader_thread_waits_for_the_first_sample_after_the_deadline_not_the
 def test_a_deadline_read_that_finds_only_older_samples_waits_for_the_next_one(monkeypatch):
     """Records waiting, but all stamped before the deadline (the chip's record for it not yet there): the reader
     waits for the next record and hands the lot over as one block; records from the deadline on need no wait."""
-    monkeypatch.setattr(threaded_source, "HANDOVER_MAX_S", 1000.0)
-    inner = _Buffer()
-    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    inner, src = _waiting_reader(monkeypatch)
     try:
-        src.poll()
-        assert _wait_for(lambda: src._waiting_until > _now() + 900)
         inner.pending, inner.arriving = 3, 1               # stamped at 0 s: before any deadline
         src.hand_over_by(_now())
         assert _readable(src.ready_fd, MARGIN_S)
@@ -427,12 +434,8 @@ def test_the_reader_reads_a_deadline_when_its_first_sample_can_be_read_and_else_
 def test_samples_read_before_a_failed_read_for_the_next_record_are_handed_over(monkeypatch):
     """A deadline's read finds only older samples and waits for the next record, whose read fails (the device gone):
     the samples already read still reach the daemon (a sample the source counted is never dropped here)."""
-    monkeypatch.setattr(threaded_source, "HANDOVER_MAX_S", 1000.0)
-    inner = _Buffer()
-    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    inner, src = _waiting_reader(monkeypatch)
     try:
-        src.poll()
-        assert _wait_for(lambda: src._waiting_until > _now() + 900)
         inner.pending, inner.fails_after_wait = 3, True
         src.hand_over_by(_now())
         assert _readable(src.ready_fd, MARGIN_S)

@@ -433,26 +433,14 @@ def test_the_hand_over_drains_a_backlog_every_handover_s_and_else_waits_handover
     import multiprocessing
     from types import SimpleNamespace
 
-    class Reader:
-        realtime_refused = None
-
-        def __init__(self):
-            self.buf = []
-
-        def poll(self):
-            out, self.buf = self.buf, []
-            return out
-
-        def counters(self):
-            return {}
-
+    read: list = []
+    src = SimpleNamespace(realtime_refused=None, counters=dict, poll=lambda: [read.pop(0) for _ in list(read)])
     now = [100.0]
     monkeypatch.setattr(process_source, "time", SimpleNamespace(monotonic=lambda: now[0]))
     daemon_end, child_end = multiprocessing.Pipe()
-    src = Reader()
     h = process_source._Handover(child_end, src, room=lambda: True)
     h.next_counters = 1e9                                   # no counters message in the way
-    src.buf = [ImuSample(t_s=k, gyro_rad_s=np.zeros(3), accel_m_s2=np.zeros(3), mag_ut=np.zeros(3), temp_c=25.0,
+    read[:] = [ImuSample(t_s=k, gyro_rad_s=np.zeros(3), accel_m_s2=np.zeros(3), mag_ut=np.zeros(3), temp_c=25.0,
                          supply_v=5.0, flags=SampleFlags.NEW_DATA, diag_stat=0, counter=k)
                for k in range(h.chunk_samples + 1)]
     h.maybe_send()
