@@ -71,6 +71,7 @@ import json
 import os
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import tempfile
@@ -199,6 +200,19 @@ def split_table(line0: dict, line1: dict) -> list[str]:
     return lines
 
 
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)     # Linux include/uapi/asm-generic/socket.h (= SCM_)
+
+
+def kernel_receipt(ancillary, now: float) -> float:
+    """The kernel's receipt time of a datagram (SCM_TIMESTAMPNS, CLOCK_REALTIME) on CLOCK_MONOTONIC (`now` when the
+    kernel gave none)."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
+            sec, nsec = struct.unpack("qq", data[:16])
+            return sec + nsec * 1e-9 - (time.time() - time.monotonic())
+    return now
+
+
 def dir_bytes(path: Path) -> int:
     return sum(p.stat().st_size for p in path.glob("*") if p.is_file()) if path.is_dir() else 0
 
@@ -242,7 +256,7 @@ class Load:
 def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = False, gnss: bool = False,
            scenario: str = "static", sensor: str = "sim", load: bool = False, flood_hz: float = 1000.0,
            floor: bool = False, rate_hz: float | None = None, threads: bool = False,
-           split: bool = False) -> dict:
+           split: bool = False, trace: bool = False) -> dict:
     sock = free_udp_socket()
     port = sock.getsockname()[1]
     with tempfile.TemporaryDirectory() as tmp:
@@ -272,7 +286,9 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
         # heading, no VPE, is sent, and with a wrong one the GNSS path would be measured rejecting it
         save_mag_calibration(tmp, sim_chip_mag_model(scenario))
         split_path = Path(tmp) / "split.jsonl"
-        launcher = [str(REPO / "bench" / "loop_split.py"), str(split_path), "--"] if split else ["-m", "ahrsd.cli"]
+        trace_path = Path(tmp) / "trace.json"
+        launcher = ([str(REPO / "bench" / "loop_split.py"), str(split_path), "--"] if split else
+                    [str(REPO / "bench" / "iio_trace.py"), str(trace_path), "--"] if trace else ["-m", "ahrsd.cli"])
         proc = subprocess.Popen(
             [sys.executable, *launcher, "run", *source_args, *(("--gnss-sim",) if gnss and device is None else ()),
              "--config", str(config),
@@ -282,7 +298,12 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
         parser = mavlink.MAVLink(None)
         parser.robust_parsing = True
         sock.settimeout(0.5)
+        # the kernel's receipt time of each datagram (SO_TIMESTAMPNS, CLOCK_REALTIME) as well as this process's:
+        # the bench's own wake after a datagram arrived is not the daemon's latency
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        lat_kernel: list[float] = []
         lat: dict[str, list[float]] = {"VISION_POSITION_ESTIMATE": [], "HIGHRES_IMU": []}
+        vpe: list[tuple[int, float]] = []       # (usec, arrival) of each VPE in the window (--trace)
         counts: dict[str, int] = {}
         t_start = None
         nbytes = 0
@@ -296,10 +317,11 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
             active = aided = False
             while time.monotonic() < deadline:
                 try:
-                    data, addr = sock.recvfrom(65535)
+                    data, ancillary, _flags, addr = sock.recvmsg(65535, 64)
                 except socket.timeout:
                     continue
                 now = time.monotonic()
+                stamp = kernel_receipt(ancillary, now)
                 if load and loader is None and t_start is not None:
                     loader = Load(sock, flood_hz)
                 if loader is not None:
@@ -334,6 +356,8 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
                         nbytes += len(m.get_msgbuf())
                     if mtype == "VISION_POSITION_ESTIMATE":
                         lat[mtype].append(now - m.usec * 1e-6)
+                        lat_kernel.append(stamp - m.usec * 1e-6)
+                        vpe.append((m.usec, now))
                         nbytes += len(m.get_msgbuf())
                     elif mtype == "HIGHRES_IMU":
                         lat[mtype].append(now - m.time_usec * 1e-6)
@@ -363,12 +387,17 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
             proc.send_signal(signal.SIGTERM)
             proc.wait(10)
             sock.close()
+            trace_lines = []
+            if trace and trace_path.exists() and cpu0:
+                from bench.iio_trace import stage_table
+
+                trace_lines = stage_table(json.loads(trace_path.read_text()), vpe, wall0, wall1)
         stats = json.loads(stats_path.read_text()) if stats_path.exists() else {}
         truth = (device.lost_truth() if device is not None else
                  stats.get("source", {}).get("sensor_lost_outside_faults"))
     if not active or cpu0 == 0.0:
         raise SystemExit("the daemon never became ACTIVE")
-    return {"latency_s": lat, "cpu_share": (cpu1 - cpu0) / (wall1 - wall0), "window_s": wall1 - wall0,
+    return {"latency_s": lat, "vpe_kernel_s": lat_kernel, "cpu_share": (cpu1 - cpu0) / (wall1 - wall0), "window_s": wall1 - wall0,
             "chip_share": (chip1 - chip0) / (wall1 - wall0), "load_avg": os.getloadavg(),
             "iio_kernel_share": (outside1[0] - outside0[0]) / (wall1 - wall0),
             "iio_receiver_share": (outside1[1] - outside0[1]) / (wall1 - wall0), "iio_receiver": rx_counts,
@@ -378,7 +407,7 @@ def part_a(seconds: float, warmup: float, profile: str = "gcs", log: bool = Fals
             "log_mb_per_h": (log1 - log0) / (wall1 - wall0) * 3600 / 1e6, "stats": stats,
             "lost_truth": truth, "flooded": flooded,
             "threads": threads_table(proc.pid, threads0, threads1, wall1 - wall0) if threads else [],
-            "split": split_table(lines[0], lines[1]) if split else []}
+            "split": split_table(lines[0], lines[1]) if split else [], "trace": trace_lines}
 
 
 def part_b(seconds: float) -> np.ndarray:
@@ -488,6 +517,9 @@ def main() -> None:
     ap.add_argument("--split", action="store_true",
                     help="run the daemon through bench/loop_split.py and print where its event loop's CPU goes "
                     "(every loop callback and named parts timed with the thread's CPU clock over the window)")
+    ap.add_argument("--trace", action="store_true",
+                    help="--sensor iio: run the daemon through bench/iio_trace.py and print each VPE's latency split "
+                    "into its stages (age of the sample at the read, decode, the loop's wake, the outputs, the bench)")
     ap.add_argument("--skip-b", action="store_true", help="skip part B (the in-process time-stamp check)")
     ap.add_argument("--rate-hz", type=float, default=None,
                     help="[sensor] rate_hz for part A (default: the chip's 819.2 SPS; with iio, written to the "
@@ -501,7 +533,8 @@ def main() -> None:
     sensors = ("sim", "sim-process", "iio") if args.sensor == "all" else tuple(args.sensor.split(","))
     loads = {"off": (False,), "on": (True,), "both": (False, True)}[args.load]
     full = {(p, lg, gn, se, ld): part_a(args.seconds, args.warmup, p, lg, gn, scenario, se, ld, args.flood_hz,
-                                        args.floor, args.rate_hz, args.threads, args.split)
+                                        args.floor, args.rate_hz, args.threads, args.split,
+                                        args.trace and se == "iio")
             for se in sensors for ld in loads for gn in gnss_runs for p in profiles for lg in logs}
     runs = {k[:3]: r for k, r in full.items() if k[3] == sensors[0] and k[4] == loads[0]}
     for r in full.values():
@@ -516,6 +549,8 @@ def main() -> None:
         for name, values in r["latency_s"].items():
             if values:
                 print(f"   {name:25s} sample time stamp → datagram received: {pct(np.array(values))}")
+                if name == "VISION_POSITION_ESTIMATE" and r["vpe_kernel_s"]:
+                    print(f"   {name:25s} sample time stamp → kernel receipt:    {pct(np.array(r['vpe_kernel_s']))}")
         rates = ", ".join(f"{k} {v / r['window_s']:.1f}/s" for k, v in sorted(r["counts"].items()))
         print(f"   received: {rates}; {r['bytes_per_s']:.0f} B/s on the wire")
         print(f"   daemon CPU: {100 * r['cpu_share']:.1f} % of one core (utime+stime / wall), of which the event loop's "
@@ -538,7 +573,7 @@ def main() -> None:
             print(f"   floor beside it (bench/wake_floor.py, real-time {'yes' if fl['realtime'] else 'NO'}): "
                   f"{fl['late']} periods missed of {fl['wakes']} ({100 * fl['late'] / max(1, fl['wakes']):.3f} %), "
                   f"worst wake {fl['worst_s'] * 1e3:.1f} ms")
-        for line in r["threads"] + r["split"]:
+        for line in r["threads"] + r["split"] + r["trace"]:
             print(line)
         print(f"   load average at the end: {r['load_avg'][0]:.2f} (1 min), {r['load_avg'][1]:.2f} (5 min)")
         if lg:

@@ -11,36 +11,13 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
-import ctypes.util
 import logging
 import os
 import time
 
+from ahrsd.drivers.timerfd import CLOCK_MONOTONIC, TFD_CLOEXEC, TFD_NONBLOCK, Itimerspec, libc, set_expiry
+
 log = logging.getLogger(__name__)
-
-CLOCK_MONOTONIC = 1
-TFD_NONBLOCK = os.O_NONBLOCK
-TFD_CLOEXEC = os.O_CLOEXEC
-TFD_TIMER_ABSTIME = 1
-
-
-class _Timespec(ctypes.Structure):
-    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
-
-
-class _Itimerspec(ctypes.Structure):
-    _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
-
-
-def _libc():
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        libc.timerfd_create.argtypes = (ctypes.c_int, ctypes.c_int)
-        libc.timerfd_settime.argtypes = (ctypes.c_int, ctypes.c_int, ctypes.POINTER(_Itimerspec),
-                                         ctypes.POINTER(_Itimerspec))
-        return libc
-    except (OSError, AttributeError):
-        return None
 
 
 class DeadlineTimer:
@@ -56,12 +33,12 @@ class DeadlineTimer:
         self.callback = callback
         self.fd = -1
         self._handle: asyncio.TimerHandle | None = None
-        self._spec = _Itimerspec()
-        libc = _libc() if os.name == "posix" else None
-        if libc is not None and time.get_clock_info("monotonic").implementation.startswith("clock_gettime"):
-            fd = libc.timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC)
+        self._spec = Itimerspec()
+        lib = libc() if os.name == "posix" else None
+        if lib is not None and time.get_clock_info("monotonic").implementation.startswith("clock_gettime"):
+            fd = lib.timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC)
             if fd >= 0:
-                self._libc, self.fd = libc, fd
+                self._libc, self.fd = lib, fd
                 loop.add_reader(fd, self._fired)
             else:
                 log.info("timerfd unavailable (errno %d): reader deadlines have 1 ms resolution",
@@ -84,10 +61,7 @@ class DeadlineTimer:
                 self._handle.cancel()
             self._handle = self.loop.call_at(deadline, self.callback)
             return
-        sec = int(deadline)
-        self._spec.it_value.tv_sec = sec
-        self._spec.it_value.tv_nsec = max(1, int((deadline - sec) * 1e9))   # 0/0 would disarm
-        if self._libc.timerfd_settime(self.fd, TFD_TIMER_ABSTIME, ctypes.byref(self._spec), None) != 0:
+        if set_expiry(self._libc, self.fd, self._spec, deadline) != 0:
             self._handle = self.loop.call_at(deadline, self.callback)
 
     def close(self) -> None:

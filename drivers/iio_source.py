@@ -70,6 +70,7 @@ from __future__ import annotations
 
 import errno
 import logging
+import math
 import os
 import re
 import select
@@ -96,6 +97,9 @@ UT_PER_GAUSS = 100.0
 BACKOFF_FIRST_S = 0.2                # re-open attempts after the device vanished (as drivers.reconnecting)
 BACKOFF_MAX_S = 5.0
 NO_WRITER_POLL_S = 0.01              # the FIFO stand-in before its writer opened: select() would not block
+# a record is in the kernel's buffer this long after its data-ready edge (its time stamp): the driver's threaded
+# handler wakes and burst-reads the chip, 0x3E00 and 12 words = 26 bytes at ADIS16400_SPI_BURST (1 MHz), 208 µs
+READ_AFTER_EDGE_S = 0.0003
 READ_EVERY_S = 0.004                 # a paced wait (a reader process's thread) reads at most this often: a
                                      # wake per scan would cost a decode per scan
 
@@ -227,6 +231,14 @@ def driver_rate_hz(rate_hz: float) -> float:
     """The rate the kernel's driver runs at when this source asks for `rate_hz`: the kernel's value of the
     nearest SMPL_PRD setting written, then set_freq's and get_freq's integer rules (12.8 -> 10.570)."""
     return driver_milli_sps(driver_smpl_prd(driver_milli_sps(R.smpl_prd_for_rate(rate_hz)))) / 1000.0
+
+
+def next_edge_s(t: float, last_s: float, period_s: float) -> float:
+    """The chip's first data-ready edge at or after `t`, from the edge `last_s` and the period (the kernel stamps
+    each scan with its edge). It looks at most HANDOVER_MAX_S (25 ms, 31 periods) ahead: a chip clock off the rate
+    read back moves the edge by that share of it, and a read that finds the record not yet there waits for it
+    (drivers.threaded_source). A `t` within 1 µs past an edge is that edge."""
+    return last_s + max(0, math.ceil((t - last_s - 1e-6) / period_s)) * period_s
 
 
 def resolve_device(spec: str) -> tuple[Path, Path]:
@@ -556,6 +568,15 @@ class IioSource(LiveSource):
             self._vanished(exc)
             raise
         return self.decode_block(data)
+
+    def readable_after(self, t: float) -> float:
+        """When the chip's first sample at or after `t` (CLOCK_MONOTONIC s) is in the kernel's buffer: its data-ready
+        edge, from the last time stamp and the period (`next_edge_s`), plus READ_AFTER_EDGE_S; `t` itself before
+        the first record."""
+        last_ns = self._last_ns
+        if last_ns is None:
+            return t
+        return next_edge_s(t, last_ns * 1e-9, self._period_ns * 1e-9) + READ_AFTER_EDGE_S
 
     def wait(self, timeout_s: float, paced: bool = True) -> bool:
         """Block until records are waiting (True) or `timeout_s` passed (False); True also when `poll()` has

@@ -31,6 +31,7 @@ import numpy as np
 from ahrsd.core.sample import ImuSample
 from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers import errors as driver_errors
+from ahrsd.drivers.handover_plan import HANDOVER_MAX_S, HandoverPlan
 from ahrsd.drivers.pipe_messages import PipeMessages
 from ahrsd.drivers.sample_record import SampleRecord
 from ahrsd.drivers.source_interface import LiveSource
@@ -39,15 +40,11 @@ from ahrsd.drivers.source_settings import SensorSettings
 log = logging.getLogger(__name__)
 
 # When the child hands a block over (the daemon takes it as it arrives, SampleReader `ready_fd`, so each hand-over
-# is a wake of the daemon's event loop, whose cost is mostly per wake: docs/daemon.md "Performance"):
-# - at its first read once the daemon's next output falls due (`ProcessSource.hand_over_by`, told after every
-#   block): the output then goes out with the newest sample, and a wake carries work only when an output needs it;
-# - at the latest HANDOVER_MAX_S after the last hand-over: samples reach the listeners, the log and the health
-#   checks without an output due. Below LATE_AFTER_S (daemon.sample_reader), so a block's oldest sample is not
-#   counted late, and short of CHUNK_SAMPLES periods at the chip's fastest rate, so one message carries a block;
-# - every HANDOVER_S while a backlog drains (a stalled daemon: one chunk a tick, _Handover).
+# is a wake of the daemon's event loop, whose cost is mostly per wake: docs/daemon.md "Performance"): as
+# drivers.handover_plan says (the daemon's next output deadline, told through `ProcessSource.hand_over_by`, and at
+# the latest HANDOVER_MAX_S after the last hand-over, short of CHUNK_SAMPLES periods at the chip's fastest rate, so
+# one message carries a block), and every HANDOVER_S while a backlog drains (a stalled daemon: one chunk a tick).
 HANDOVER_S = 0.005
-HANDOVER_MAX_S = 0.025
 COUNTERS_EVERY_S = 0.25
 START_TIMEOUT_S = 120.0       # the child imports the drivers (and, simulated, the simulator) and starts the chip
 _RECORD = np.dtype([("t_s", "<f8"), ("gyro", "<f8", 3), ("accel", "<f8", 3), ("mag", "<f8", 3), ("temp_c", "<f8"),
@@ -191,9 +188,9 @@ class _Handover:
         writable, as the class doc says). wanted(): the daemon's next output deadline (default: none, every
         HANDOVER_MAX_S only)."""
         self.conn, self.src = conn, src
-        self.next_send = self.next_counters = 0.0
+        self.next_counters = 0.0
         self._wanted = wanted or (lambda: math.inf)
-        self._served = math.inf            # the deadline of the last hand-over made for one
+        self.plan = HandoverPlan(HANDOVER_MAX_S)      # when the next hand-over is (drivers.handover_plan)
         self.last_error, self.error_sent_at = None, -1.0
         self.pending: list[ImuSample] = []
         self.sent = 0                 # samples sent to the daemon: all the reader handed over, at the end
@@ -221,13 +218,14 @@ class _Handover:
 
     def maybe_send(self) -> None:
         now = time.monotonic()
-        wanted = self._wanted()
-        if now < self.next_send and (now < wanted or wanted == self._served):
+        plan = self.plan
+        plan.due_s = self._wanted()
+        if now < plan.next_read_s():
             return
-        if now >= wanted:
-            self._served = wanted         # a hand-over for HANDOVER_MAX_S before it leaves the deadline to come
+        plan.read_at(now)                 # a hand-over for HANDOVER_MAX_S before it leaves the deadline to come
         self._send(now)
-        self.next_send = now + (HANDOVER_S if self.pending else HANDOVER_MAX_S)
+        if self.pending:
+            plan.latest_s = now + HANDOVER_S
         work_us = (time.monotonic() - now) * 1e6
         if work_us > self.work_us_max:
             self.work_us_max = int(work_us)

@@ -72,6 +72,9 @@ class WaitingSource(SensorSource, Protocol):
         """Block until new data is ready (True) or `timeout_s` passes (False); paced: the source may hold a
         reader back so that it reads blocks, not single records (False: as soon as a record is there)."""
 
+    def readable_after(self, t: float) -> float:
+        """When the source's first sample made at or after `t` can be read (CLOCK_MONOTONIC s)."""
+
 
 class LiveSource:
     """The defaults of a sensor read live: stamped in CLOCK_MONOTONIC, never finished, not a recording, no

@@ -4,10 +4,11 @@ drained by one, the samples handed to the daemon in blocks through a bounded buf
 recording uses), so a slow MAVLink peer, a log flush or a GNSS burst on the event loop never delays a read.
 
 A block source is read when the daemon's next output falls due (`hand_over_by`) and at the latest HANDOVER_MAX_S
-after the last hand-over (`HandoverPlan`), its block handed over as columns and the daemon woken through an eventfd
-(`ready_fd`): the reader process's contract (drivers.process_source), so the daemon wakes once an output due, not on
-its polling tick, and the kernel's buffer is read once an output due, not every few ms (docs/daemon.md
-"Performance": what it saves).
+after the last hand-over (drivers.handover_plan, the reader process's contract too), its block handed over as columns
+and the daemon woken through an eventfd (`ready_fd`), so the daemon wakes once an output due, not on its polling
+tick, and the kernel's buffer is read once an output due, not every few ms (docs/daemon.md "Performance": what it
+saves). The read for a deadline waits for the chip's first sample at or after it (`readable_after`: its data-ready
+edge and the driver's burst read), so that output goes out with a sample just made.
 
 What the GIL does to it (docs/drivers.md, measured with bench/reader_gil.py): the interpreter's switch
 interval bounds how long this thread waits for the GIL while the event loop runs Python code; at 819.2 SPS the
@@ -42,8 +43,10 @@ import numpy as np
 from ahrsd.core.sample import ImuSample, SampleFlags
 from ahrsd.core.sample_block import SampleBlock
 from ahrsd.drivers.errors import FrameError
+from ahrsd.drivers.handover_plan import HANDOVER_MAX_S, HandoverPlan
 from ahrsd.drivers.read_failures import ReadFailures
 from ahrsd.drivers.source_interface import LiveSource, WaitingSource
+from ahrsd.drivers.timerfd import TimerFd
 
 log = logging.getLogger(__name__)
 
@@ -52,11 +55,8 @@ SWITCH_INTERVAL_S = 0.0002         # the GIL hand-over bound while a reader thre
 STALE_REREAD_PERIODS = 0.5        # after a stale read whose next read time is past, re-read this much later
 FIFO_PRIORITY = 50                 # SCHED_FIFO priority of the reader (1..99; below the kernel's IRQ threads)
 _GAP_BEFORE = int(SampleFlags.GAP_BEFORE)
-# A block source read in the daemon's process (the kernel's IIO buffer) hands its block over when the daemon's next
-# output falls due (`hand_over_by`, as the reader process does: drivers.process_source) and at the latest this long
-# after the last hand-over: below the daemon's LATE_AFTER_S (50 ms, daemon.sample_reader), so a block's oldest
-# sample is not counted late, and the reader process's HANDOVER_MAX_S, so the daemon's stand-in tick is the same.
-HANDOVER_MAX_S = 0.025
+# A block source read in the daemon's process (the kernel's IIO buffer) hands its block over as the reader process
+# does (drivers.handover_plan: the daemon's next output deadline, at the latest HANDOVER_MAX_S after the last).
 
 
 def _sleep_until(clock, t: float) -> None:
@@ -150,9 +150,9 @@ class ThreadedSource(LiveSource):
         self._saved_switch_interval: float | None = None
         self._lock = threading.Lock()          # the hand-over buffer and the error
         self._inner_lock = threading.Lock()    # the inner source: a read, or counters() from the event loop
-        self._buf: list[ImuSample] = []
-        self._blocks: list[SampleBlock] = []    # a block source's hand-over buffer (_read_on_deadlines)
-        self._blocks_len = 0
+        # the hand-over buffer: samples (a per-sample source) or SampleBlocks (a block source), `_buffered` samples
+        self._buf: list = []
+        self._buffered = 0
         self._gap_pending = False
         self._error: Exception | None = None
         self._stop = threading.Event()
@@ -164,11 +164,12 @@ class ThreadedSource(LiveSource):
         self._last_delivered: int | None = None
         self.after_read = None     # called by the reader thread between reads (drivers.process_source's hand-over)
         self._plan = HandoverPlan(HANDOVER_MAX_S)
-        self._told = threading.Event()           # hand_over_by told a deadline earlier than the reader's wait
-        self._waiting_until = math.inf           # when the block reader's wait ends (inf: it is not waiting)
+        self._waiting_until = math.inf           # when the block reader's timer expires (inf: it is not waiting)
+        self._timer: TimerFd | None = None       # what the block reader waits on; hand_over_by moves it sooner
         if not inner.per_sample:
             # the daemon polls when this becomes readable (daemon.sample_reader `ready_fd`), not on a fixed tick
             self.ready_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+            self._timer = TimerFd()
             self.handover_max_s = HANDOVER_MAX_S
             self.stats.update({"handovers": 0, "handovers_on_due": 0})
         self.log_realtime = True   # log whether SCHED_FIFO was granted (a reader process reports it instead)
@@ -234,30 +235,31 @@ class ThreadedSource(LiveSource):
         every record waiting when the daemon's next output falls due, or HANDOVER_MAX_S after the last hand-over
         (`HandoverPlan`), hand the block over and make `ready_fd` readable. One read and one wake of the event loop
         per output due, instead of a read every few ms and a daemon poll on its tick (docs/daemon.md
-        "Performance")."""
+        "Performance"). The thread waits on a timerfd that the daemon's `hand_over_by` arms for its deadline: one
+        wake of this thread a read (a wake to learn of the deadline and another at it cost twice the wakes)."""
         failures = ReadFailures()
-        inner, stop, told, clock, plan, stats = self.inner, self._stop, self._told, self._clock, self._plan, self.stats
+        inner, stop, clock, plan, stats, timer = self.inner, self._stop, self._clock, self._plan, self.stats, self._timer
         next_record_s = 2.0 / self.sample_rate_hz     # the longest wait for the next record after a deadline
-        plan.last_s = clock()
+        plan.read_at(clock())
         while not stop.is_set():
-            # the order matters against hand_over_by (the event loop's thread): a deadline told before
-            # next_read_s() is in it; one told after finds _waiting_until either inf or the wait's end, and sets
-            # `told` if it is earlier, so the wait below returns at once
-            self._waiting_until = math.inf
-            told.clear()
-            target = self._waiting_until = plan.next_read_s()
-            dt = target - clock()
-            if dt > 0:
-                told.wait(dt)
-                continue
+            self._arm_next_read()
+            timer.wait()          # one wake a read: hand_over_by re-arms the timer for a deadline, never wakes it
+            if stop.is_set():
+                break
+            if clock() < self._waiting_until:
+                continue          # armed later meanwhile (cannot happen: only sooner), so not due yet
             self._waiting_until = math.inf
             on_due = plan.read_at(clock())
+            handed = False
             try:
                 with self._inner_lock:
                     samples = inner.poll()
-                # nothing new at the deadline (a latest-by read came just before it): the output goes with the
-                # next record, not 25 ms later with the next hand-over
-                if on_due and not len(samples) and inner.wait(next_record_s, paced=False):
+                # no sample from the deadline on (a latest-by read came just before it, or the record is late):
+                # the output goes with the next record, not with an older one or 25 ms later
+                if on_due and not _reaches(samples, plan.served_s) and inner.wait(next_record_s, paced=False):
+                    if len(samples):
+                        self._hand_over_block(samples)    # first: kept should the next read fail (the device gone)
+                        handed = True
                     with self._inner_lock:
                         samples = inner.poll()
             except Exception as exc:  # noqa: BLE001 - BusError / OSError: the source re-opens on its own
@@ -266,11 +268,33 @@ class ThreadedSource(LiveSource):
                 continue
             stats["reads"] += 1
             failures.read_ok()
-            if len(samples):
-                self._hand_over_block(samples)
+            if len(samples) or handed:
+                if len(samples):
+                    self._hand_over_block(samples)
                 stats["handovers"] += 1
                 stats["handovers_on_due"] += on_due
                 os.eventfd_write(self.ready_fd, 1)        # the daemon's loop wakes and polls (sample_reader)
+
+    def _next_read_s(self) -> float:
+        """When the block reader reads next (HandoverPlan), a deadline's read once the chip's first sample at or
+        after it is in the buffer, so the output goes with a sample just made, not one up to a period old
+        (docs/daemon.md "Performance")."""
+        plan = self._plan
+        target = plan.next_read_s()
+        return self.inner.readable_after(target) if target == plan.due_s else target
+
+    def _arm_next_read(self) -> None:
+        """Arm the reader's timer for its next read. The order matters against hand_over_by (the event loop's
+        thread, which arms it for a deadline sooner than `_waiting_until`): a deadline told before the second look
+        is in it, one told after it sees this `_waiting_until` and arms after this arm."""
+        target = self._waiting_until = self._next_read_s()
+        self._timer.arm(target)
+        again = self._next_read_s()
+        if again < target:
+            self._waiting_until = again
+            self._timer.arm(again)
+        if self._stop.is_set():
+            self._timer.arm(0.0)       # close() armed it expired before this arm: wake to see the stop
 
     def _read_per_sample(self) -> None:
         """A per-sample source: the hand-over tick, wait for the next sample, read it, hand it over. The read is
@@ -321,18 +345,18 @@ class ThreadedSource(LiveSource):
     def _hand_over(self, sample: ImuSample) -> None:
         with self._lock:
             self._error = None
-            buf = self._buf
-            if len(buf) >= self._capacity:
+            if self._buffered >= self._capacity:
                 self.stats["handover_dropped"] += 1
                 self._gap_pending = True
                 return
             if self._gap_pending:
                 self._gap_pending = False
                 sample = sample.with_values(flags=sample.flags | SampleFlags.GAP_BEFORE)   # an ImuSample or a SampleRecord
-            buf.append(sample)
+            self._buf.append(sample)
+            self._buffered += 1
             self.stats["handed_over"] += 1
-            if len(buf) > self.stats["handover_max_backlog"]:
-                self.stats["handover_max_backlog"] = len(buf)
+            if self._buffered > self.stats["handover_max_backlog"]:
+                self.stats["handover_max_backlog"] = self._buffered
 
     def _hand_over_block(self, block: SampleBlock) -> None:
         """A block read at once (the kernel's buffer), kept as it is for the daemon: the rule of `_hand_over` (a
@@ -341,18 +365,18 @@ class ThreadedSource(LiveSource):
         with self._lock:
             self._error = None
             n = len(block)
-            room = self._capacity - self._blocks_len
+            room = self._capacity - self._buffered
             if room < n:
                 self.stats["handover_dropped"] += n - max(0, room)
                 block = _rows(block, max(0, room))
             if len(block):
                 if self._gap_pending:
                     block.flags[0] |= _GAP_BEFORE     # the block's own list (drivers.iio_source decode_block)
-                self._blocks.append(block)
-                self._blocks_len += len(block)
+                self._buf.append(block)
+                self._buffered += len(block)
                 self.stats["handed_over"] += len(block)
-                if self._blocks_len > self.stats["handover_max_backlog"]:
-                    self.stats["handover_max_backlog"] = self._blocks_len
+                if self._buffered > self.stats["handover_max_backlog"]:
+                    self.stats["handover_max_backlog"] = self._buffered
             self._gap_pending = room < n
 
     # -- the SensorSource interface ------------------------------------------------------------------------------
@@ -362,9 +386,14 @@ class ThreadedSource(LiveSource):
         hands its block over then. The reader is woken only when it waits for longer."""
         if self.ready_fd is None:
             return                   # a per-sample reader hands every sample over as it reads it
-        self._plan.due_s = t
+        plan = self._plan
+        plan.due_s = t
+        if t == plan.served_s:
+            return                   # served already: the reader's next read is its latest-by one
+        t = self.inner.readable_after(t)
         if t < self._waiting_until:
-            self._told.set()
+            self._waiting_until = t
+            self._timer.arm(t)
 
     def poll(self) -> list[ImuSample]:
         if self._thread is None:
@@ -375,15 +404,14 @@ class ThreadedSource(LiveSource):
             except BlockingIOError:                 # the daemon again
                 pass
         with self._lock:
-            if self._blocks:
-                out, self._blocks, self._blocks_len = _joined(self._blocks), [], 0
-            else:
-                out, self._buf = self._buf, []
+            out, self._buf, self._buffered = self._buf, [], 0
             error = self._error
+        if out and type(out[0]) is SampleBlock:
+            out = _joined(out)
         if not len(out) and error is not None:
             raise error
         if len(out):
-            self._last_delivered = out.counter[-1] if type(out) is SampleBlock else out[-1].counter
+            self._last_delivered = _counter(out, -1)
         return out
 
     def counters(self) -> dict:
@@ -394,16 +422,15 @@ class ThreadedSource(LiveSource):
 
     def close(self) -> None:
         self._stop.set()
-        self._told.set()
+        if self._timer is not None:
+            self._timer.arm(0.0)             # expired: the block reader wakes and sees the stop
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(2.0)
         with self._lock:     # sample indices read (or lost) after the last hand-over: the chip's truth has them
-            if self._blocks:
-                first = self._blocks[0].counter[0] if self._last_delivered is None else self._last_delivered + 1
-                self.stats["undelivered_at_close"] = self._blocks[-1].counter[-1] - first + 1
-            elif self._buf:
-                first = self._buf[0].counter if self._last_delivered is None else self._last_delivered + 1
-                self.stats["undelivered_at_close"] = self._buf[-1].counter - first + 1
+            if self._buf:
+                kept = _joined(self._buf) if type(self._buf[0]) is SampleBlock else self._buf
+                first = _counter(kept, 0) if self._last_delivered is None else self._last_delivered + 1
+                self.stats["undelivered_at_close"] = _counter(kept, -1) - first + 1
         if self._saved_switch_interval is not None:
             sys.setswitchinterval(self._saved_switch_interval)
             self._saved_switch_interval = None
@@ -412,12 +439,23 @@ class ThreadedSource(LiveSource):
         if self.ready_fd is not None and (self._thread is None or not self._thread.is_alive()):
             os.close(self.ready_fd)
             self.ready_fd = None
+            self._timer.close()
 
 
 def _rows(block: SampleBlock, n: int) -> SampleBlock:
     """The first n samples of a block of columns."""
     return SampleBlock(block.t_s[:n], block.vectors[:n], block.temp_c[:n], block.supply_v[:n], block.flags[:n],
                        block.diag_stat[:n], block.counter[:n])
+
+
+def _counter(samples, i: int) -> int:
+    """The sample index of samples[i]: a block's column, or a sample's own."""
+    return samples.counter[i] if type(samples) is SampleBlock else samples[i].counter
+
+
+def _reaches(block: SampleBlock, t_s: float) -> bool:
+    """Whether the block holds a sample stamped at or after `t_s`."""
+    return len(block) > 0 and block.t_s[-1] >= t_s
 
 
 def _joined(blocks: list[SampleBlock]) -> SampleBlock:
@@ -428,31 +466,6 @@ def _joined(blocks: list[SampleBlock]) -> SampleBlock:
                        [v for b in blocks for v in b.temp_c], [v for b in blocks for v in b.supply_v],
                        [v for b in blocks for v in b.flags], [v for b in blocks for v in b.diag_stat],
                        [v for b in blocks for v in b.counter])
-
-
-class HandoverPlan:
-    """When a block reader reads and hands over (ThreadedSource._read_on_deadlines): at the daemon's next output
-    deadline (`due_s`, told through hand_over_by) unless that one was served already, and at the latest `max_s`
-    after the last hand-over. A deadline is served once: the daemon tells the next one after it took the block
-    (the reader process's `_Handover` rule, drivers.process_source)."""
-
-    def __init__(self, max_s: float):
-        self.max_s = max_s
-        self.due_s = math.inf        # the daemon's next output deadline (CLOCK_MONOTONIC s; inf: none)
-        self.served_s = math.inf     # the deadline the last read was made for
-        self.last_s = -math.inf      # the last read
-
-    def next_read_s(self) -> float:
-        due, latest = self.due_s, self.last_s + self.max_s
-        return due if due != self.served_s and due < latest else latest
-
-    def read_at(self, now: float) -> bool:
-        """A read made at `now`; True when it serves the daemon's deadline (`due_s` reached)."""
-        self.last_s = now
-        if now >= self.due_s != self.served_s:
-            self.served_s = self.due_s
-            return True
-        return False
 
 
 class _Pacing:

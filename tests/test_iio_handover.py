@@ -28,7 +28,9 @@ from ahrsd.daemon.outputs import OutputSchedule
 from ahrsd.daemon.pipeline import Pipeline
 from ahrsd.daemon.sample_reader import ReaderOutputs, SampleListeners, SampleReader
 from ahrsd.drivers import threaded_source
+from ahrsd.drivers.errors import BusError
 from ahrsd.drivers.source_interface import LiveSource
+from ahrsd.drivers.iio_source import READ_AFTER_EDGE_S, IioSource, next_edge_s
 from ahrsd.drivers.threaded_source import HANDOVER_MAX_S, HandoverPlan, ThreadedSource
 from support.stub_estimator import StubEstimator
 from support.virtual_time_loop import VirtualTimeLoop
@@ -42,7 +44,8 @@ MARGIN_S = 10.0            # the longest a thread's wake may take on a loaded ma
 
 def test_the_plan_reads_at_the_deadline_once_and_else_every_max_after_the_last():
     plan = HandoverPlan(0.025)
-    plan.last_s = 10.0
+    assert plan.next_read_s() == -math.inf                  # no read yet: read now
+    assert plan.read_at(10.0) is False
     assert plan.next_read_s() == 10.025                     # nothing told: 25 ms after the last read
     plan.due_s = 10.012
     assert plan.next_read_s() == 10.012                     # the daemon's output falls due first
@@ -77,7 +80,7 @@ class _KernelAndReader(LiveSource):
         self.os = os
         self.loop, self.t0 = loop, loop.time()
         self.plan = HandoverPlan(HANDOVER_MAX_S)
-        self.plan.last_s = self.t0
+        self.plan.read_at(self.t0)
         self.ready_fd, self._w = os.pipe()
         os.set_blocking(self.ready_fd, False)
         self.handed: list[list[float]] = []        # blocks handed over, not yet polled
@@ -89,7 +92,10 @@ class _KernelAndReader(LiveSource):
     def _arm(self) -> None:
         if self._timer is not None:
             self._timer.cancel()
-        self._timer = self.loop.call_at(max(self.loop.time(), self.plan.next_read_s()), self._read)
+        target = self.plan.next_read_s()
+        if target == self.plan.due_s:            # a deadline: read at its first record (ThreadedSource, IioSource)
+            target = next_edge_s(target, self.t0, PERIOD_S) + READ_AFTER_EDGE_S
+        self._timer = self.loop.call_at(max(self.loop.time(), target), self._read)
 
     def _read(self) -> None:
         now = self.loop.time()
@@ -98,6 +104,7 @@ class _KernelAndReader(LiveSource):
         block = [self.t0 + k * PERIOD_S for k in range(self._k_read, newest + 1)]
         self._k_read = newest + 1
         self.reads.append((now, on_due))
+        assert len(self.reads) <= 1000 * RUN_S, "the reader reads without end"     # a wrong read time: fail, not hang
         if block:
             self.loop.call_at(now + THREAD_WAKE_S, self._hand_over, block)
         self._timer = None
@@ -175,13 +182,14 @@ def test_the_daemon_wakes_once_an_output_due_and_sends_each_with_the_newest_reco
     assert 69 * RUN_S <= on_due <= 70 * RUN_S + 2
     # no read beyond those and the latest-by ones: two deadlines never 25 ms apart on these grids, so none
     assert len(source.reads) - on_due <= 2
-    # the daemon's wakes: one a hand-over, and its first polls on the 5 ms tick until the first hand-over (20 ms
-    # in, at the first deadline told); the stand-in tick, 75 ms away at least, never needed after
-    assert reader.counters.wakes <= len(source.reads) + 5
-    # each output goes out with the newest record its deadline had: the read is at the deadline, the record at most
-    # a period old, the hand-over THREAD_WAKE_S later
+    # the daemon's wakes: one a hand-over, and its first polls on the 5 ms tick until the first hand-over (25 ms
+    # in at the latest: the tick at 20 ms serves the first deadline, told at 20 ms, before the read just after it);
+    # the stand-in tick, 75 ms away at least, never needed after
+    assert reader.counters.wakes <= len(source.reads) + 6
+    # each output goes out with the first record from its deadline on: the read is READ_AFTER_EDGE_S after that
+    # record's edge, the hand-over THREAD_WAKE_S later (a read at the deadline itself: up to a period older)
     lag = [now - newest for now, newest in sent[5:]]
-    assert max(lag) <= PERIOD_S + THREAD_WAKE_S + 1e-9
+    assert max(lag) <= READ_AFTER_EDGE_S + THREAD_WAKE_S + 1e-9
 
 
 # -- the thread itself: counts ---------------------------------------------------------------------------------------
@@ -199,20 +207,31 @@ class _Buffer(LiveSource):
         self.reads = 0
         self.arriving = 0          # records the kernel writes while a reader waits for the next one
         self.waits_for_next = 0
+        self.base_s = 0.0          # the time stamp of record 0 (records k * PERIOD_S later)
+        self.readable_s = 0.0      # how long after a time its first sample can be read (readable_after)
+        self.fails_after_wait = False   # the read after a wait for the next record fails (the device gone)
+
+    def readable_after(self, t: float) -> float:
+        return t + self.readable_s
 
     def wait(self, timeout_s: float, paced: bool = True) -> bool:
         if not paced:
             self.waits_for_next += 1
             self.pending += self.arriving
             self.arriving = 0
-        return self.pending > 0
+            if self.fails_after_wait:
+                self.pending = -1
+        return self.pending != 0
 
     def poll(self) -> SampleBlock:
         self.reads += 1
+        if self.pending < 0:
+            self.pending = 0
+            raise BusError("the device ended the stream")
         n, self.pending = self.pending, 0
         ks = list(range(self.k, self.k + n))
         self.k += n
-        return SampleBlock([k * PERIOD_S for k in ks], np.zeros((n, 9)), [25.0] * n, [5.0] * n,
+        return SampleBlock([self.base_s + k * PERIOD_S for k in ks], np.zeros((n, 9)), [25.0] * n, [5.0] * n,
                            [int(SampleFlags.NEW_DATA)] * n, [0] * n, ks)
 
     def counters(self):
@@ -255,6 +274,9 @@ def test_the_reader_thread_hands_over_on_the_deadline_told_and_wakes_the_daemon(
         assert _readable(src.ready_fd, MARGIN_S)
         block = src.poll()
         assert list(block.counter) == list(range(12)) and not _readable(src.ready_fd, 0.0)
+        assert _wait_for(lambda: src._waiting_until > _now() + 100)
+        src.hand_over_by(src._plan.served_s)               # the deadline served, told again: no read for it
+        assert src._waiting_until > _now() + 100
         for expected_on_due in (2, 3):                     # every deadline told is served once
             inner.pending = 5
             assert _wait_for(lambda: src._waiting_until > _now() + 100)
@@ -315,4 +337,108 @@ def test_a_per_sample_reader_has_no_ready_fd_and_ignores_deadlines():
                          switch_interval_s=None)
     assert src.ready_fd is None and src.handover_max_s == 0.0
     src.hand_over_by(1.0)
-    assert not src._told.is_set()
+    assert src._timer is None and src._waiting_until == math.inf
+
+
+# -- session 42: the read for a deadline waits for the chip's first sample at or after it -----------------------------
+
+def _waiting_reader(monkeypatch):
+    """A started reader thread on a _Buffer, waiting for its latest-by read 1000 s on: only a deadline told makes it
+    read."""
+    monkeypatch.setattr(threaded_source, "HANDOVER_MAX_S", 1000.0)
+    inner = _Buffer()
+    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    src.poll()
+    assert _wait_for(lambda: src._waiting_until > _now() + 900)
+    return inner, src
+
+
+def test_the_next_edge_by_worked_times():
+    # edges every 1 ms from 10.000 s
+    assert next_edge_s(10.0035, 10.0, 0.001) == pytest.approx(10.004)
+    assert next_edge_s(10.004, 10.0, 0.001) == pytest.approx(10.004)          # on an edge: that edge
+    assert next_edge_s(10.0040005, 10.0, 0.001) == pytest.approx(10.004)      # within 1 µs past it: that edge
+    assert next_edge_s(10.0041, 10.0, 0.001) == pytest.approx(10.005)
+    assert next_edge_s(9.9, 10.0, 0.001) == 10.0                              # before the last edge: that one
+
+
+def test_an_iio_source_reads_a_deadline_at_the_next_edge_plus_the_burst_read():
+    src = object.__new__(IioSource)                        # the edge rule only: no device
+    src._last_ns, src._period_ns = None, 1e9 / RATE_HZ
+    assert src.readable_after(5.0) == 5.0                  # no record yet: at the deadline
+    src._last_ns = 5_000_000_000                           # the last record was stamped 5.000 s
+    # a deadline 3.5 periods on: the 4th edge, 4 / 819.2 s = 4.8828125 ms, and the driver's burst read
+    assert src.readable_after(5.0 + 3.5 / RATE_HZ) == pytest.approx(5.0 + 4 / RATE_HZ + READ_AFTER_EDGE_S)
+    assert READ_AFTER_EDGE_S == pytest.approx(26 * 8 / 1e6, abs=0.0001)   # 26 bytes at 1 MHz, with the wake
+
+
+def test_the_reader_thread_waits_for_the_first_sample_after_the_deadline_not_the_deadline(monkeypatch):
+    """The thread told a deadline waits until the source says the deadline's first sample can be read
+    (`readable_after`), not until the deadline itself: with that 500 s away it waits and does not read."""
+    monkeypatch.setattr(threaded_source, "HANDOVER_MAX_S", 1000.0)
+    inner = _Buffer()
+    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    try:
+        src.poll()
+        assert _wait_for(lambda: src._waiting_until > _now() + 900)   # the latest-by read, 1000 s on
+        reads = inner.reads
+        inner.readable_s = 500.0
+        due = _now()
+        src.hand_over_by(due)
+        assert _wait_for(lambda: src._waiting_until == due + 500.0)
+        assert inner.reads == reads                                # not read at the deadline
+        inner.readable_s, inner.pending = 0.0, 3
+        src.hand_over_by(_now())                                   # one that can be read now: read and handed over
+        assert _readable(src.ready_fd, MARGIN_S) and len(src.poll()) == 3
+    finally:
+        src.close()
+
+
+def test_a_deadline_read_that_finds_only_older_samples_waits_for_the_next_one(monkeypatch):
+    """Records waiting, but all stamped before the deadline (the chip's record for it not yet there): the reader
+    waits for the next record and hands the lot over as one block; records from the deadline on need no wait."""
+    inner, src = _waiting_reader(monkeypatch)
+    try:
+        inner.pending, inner.arriving = 3, 1               # stamped at 0 s: before any deadline
+        src.hand_over_by(_now())
+        assert _readable(src.ready_fd, MARGIN_S)
+        assert list(src.poll().counter) == [0, 1, 2, 3] and inner.waits_for_next == 1
+        assert src.stats["handovers"] == 1 and src.stats["handovers_on_due"] == 1
+        assert _wait_for(lambda: src._waiting_until > _now() + 900)
+        inner.base_s = _now() + 1000.0                     # stamped after the deadline: taken as they are
+        inner.pending, inner.arriving = 2, 1
+        src.hand_over_by(_now())
+        assert _readable(src.ready_fd, MARGIN_S)
+        assert list(src.poll().counter) == [4, 5] and inner.waits_for_next == 1
+    finally:
+        src.close()
+
+
+def test_the_reader_reads_a_deadline_when_its_first_sample_can_be_read_and_else_at_the_latest():
+    """The block reader's next read time (`_next_read_s`, worked times, no thread): a deadline told and not served is
+    read at the source's `readable_after` of it; a served one leaves the latest-by read."""
+    inner = _Buffer()
+    inner.readable_s = 0.0009
+    src = ThreadedSource(inner, realtime=False, switch_interval_s=None)
+    try:
+        plan = src._plan
+        plan.read_at(100.0)                                # latest-by at 100.025
+        plan.due_s = 100.010
+        assert src._next_read_s() == pytest.approx(100.0109)
+        assert plan.read_at(100.0109) is True              # served
+        assert src._next_read_s() == pytest.approx(100.0359)
+    finally:
+        src.close()
+
+
+def test_samples_read_before_a_failed_read_for_the_next_record_are_handed_over(monkeypatch):
+    """A deadline's read finds only older samples and waits for the next record, whose read fails (the device gone):
+    the samples already read still reach the daemon (a sample the source counted is never dropped here)."""
+    inner, src = _waiting_reader(monkeypatch)
+    try:
+        inner.pending, inner.fails_after_wait = 3, True
+        src.hand_over_by(_now())
+        assert _readable(src.ready_fd, MARGIN_S)
+        assert list(src.poll().counter) == [0, 1, 2] and src.stats["read_failures"] == 1
+    finally:
+        src.close()

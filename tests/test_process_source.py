@@ -164,13 +164,13 @@ def test_the_hand_over_never_blocks_the_reader_on_a_full_pipe():
     h = process_source._Handover(child_end, src, room=lambda: room[0])
     for _ in range(5):
         src.read(3)
-        h.next_send = 0.0
+        h.plan.latest_s = 0.0
         h.maybe_send()
     assert not daemon_end.poll(0)                            # nothing sent while the pipe had no room
     room[0] = True
-    h.next_send = 0.0
+    h.plan.latest_s = 0.0
     h.maybe_send()
-    h.next_send = 0.0
+    h.plan.latest_s = 0.0
     h.maybe_send()
     got = []
     while daemon_end.poll(0.2):
@@ -367,7 +367,7 @@ def test_the_hand_over_sends_one_bounded_message_a_tick_and_never_blocks_a_real_
     def ticks(n):
         for _ in range(n):
             before = end.samples_messages
-            h.next_send = 0.0
+            h.plan.latest_s = 0.0
             h.maybe_send()
             per_tick.append(end.samples_messages - before)
 
@@ -424,3 +424,29 @@ def test_blocks_unpacked_together_keep_every_sample_its_own_flags_and_order():
     for r, s in zip(got, samples):
         for a, b in ((r.gyro_rad_s, s.gyro_rad_s), (r.accel_m_s2, s.accel_m_s2), (r.mag_ut, s.mag_ut)):
             np.testing.assert_array_equal(a, b)
+
+
+def test_the_hand_over_drains_a_backlog_every_handover_s_and_else_waits_handover_max_s(monkeypatch):
+    """The reader process's next hand-over (drivers.handover_plan's latest_s), by worked times on a stepped clock: a
+    tick that leaves samples pending (more than one message's chunk) comes again HANDOVER_S later, one that sent
+    them all HANDOVER_MAX_S later."""
+    import multiprocessing
+    from types import SimpleNamespace
+
+    read: list = []
+    src = SimpleNamespace(realtime_refused=None, counters=dict, poll=lambda: [read.pop(0) for _ in list(read)])
+    now = [100.0]
+    monkeypatch.setattr(process_source, "time", SimpleNamespace(monotonic=lambda: now[0]))
+    daemon_end, child_end = multiprocessing.Pipe()
+    h = process_source._Handover(child_end, src, room=lambda: True)
+    h.next_counters = 1e9                                   # no counters message in the way
+    read[:] = [ImuSample(t_s=k, gyro_rad_s=np.zeros(3), accel_m_s2=np.zeros(3), mag_ut=np.zeros(3), temp_c=25.0,
+                         supply_v=5.0, flags=SampleFlags.NEW_DATA, diag_stat=0, counter=k)
+               for k in range(h.chunk_samples + 1)]
+    h.maybe_send()
+    assert len(h.pending) == 1 and h.plan.latest_s == pytest.approx(100.0 + process_source.HANDOVER_S)
+    now[0] = 100.0 + process_source.HANDOVER_S
+    h.maybe_send()
+    assert not h.pending and h.plan.latest_s == pytest.approx(now[0] + process_source.HANDOVER_MAX_S)
+    daemon_end.close()
+    child_end.close()
