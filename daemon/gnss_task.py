@@ -4,8 +4,9 @@ Every backend (drivers.gnss.backend.GnssBackend: serial receiver, autopilot MAVL
 receiver) is handled the same way by `poll()`: read the fixes available now, pass each through one
 drivers.gnss.validation.GnssFixValidator (rejections counted and logged by it), log it with its verdict, and
 hand an accepted fix to the estimator's `update_gnss(fix)` when it is aided, then to every subscriber.
-`poll()` runs when the backend's descriptor is readable, from `tick` (housekeeping), right after a MAVLink
-message was offered (`on_mavlink`), and after each batch of replayed samples. Nothing raises out of here: a
+`poll()` runs when the backend's descriptor is readable (given `after_output`: at the end of the sample reader's
+next wake, after its outputs were sent), from `tick` (housekeeping), right after a MAVLink message was offered
+(`on_mavlink`), and after each batch of replayed samples. Nothing raises out of here: a
 failing backend, estimator call or subscriber is counted and logged.
 
 `gnss_backend_for(cfg, ...)` builds the configured backend: the one place that looks at `[gnss] source`.
@@ -177,6 +178,8 @@ class GnssTask:
         self.origin = LocalOrigin()     # LOCAL_POSITION_NED's origin: the first navigation position
         self._loop = None
         self._fd = -1
+        self._after_output = None       # open(after_output=): where a readable descriptor's poll is deferred to
+        self._poll_deferred = False
         self._opened_at = math.inf
         self._shown_state = ""
         self._pending_text = ""
@@ -190,11 +193,14 @@ class GnssTask:
         return self.backend.description
 
     # ------------------------------------------------------------------------------------------ start / stop
-    def open(self, loop=None) -> None:
+    def open(self, loop=None, after_output: Callable[[Callable[[], None]], None] | None = None) -> None:
         """Start the backend (raises on a configuration it refuses, so `ahrsd run` fails at start with the
-        reason) and watch its descriptor on `loop` when it has one."""
+        reason) and watch its descriptor on `loop` when it has one. `after_output(fn)`: runs `fn` once after the
+        next outputs are sent (daemon.sample_reader SampleReader.after_output); given, a readable descriptor's
+        fixes are read and delivered then, not in front of an output that is due (`_on_readable`)."""
         self.backend.start()
         self._loop = loop
+        self._after_output = after_output
         self._follow_fd()
         self._opened_at = self.clock()
         log.info("GNSS: %s", self.description)
@@ -219,7 +225,7 @@ class GnssTask:
             return
         self._unwatch_fd()
         if fd >= 0 and self._loop is not None:
-            self._loop.add_reader(fd, self.poll)
+            self._loop.add_reader(fd, self._on_readable)
             self._fd = fd
 
     def _unwatch_fd(self) -> None:
@@ -229,6 +235,25 @@ class GnssTask:
             except (ValueError, OSError):
                 pass
         self._fd = -1
+
+    def _on_readable(self) -> None:
+        """The backend's descriptor is readable. Without `after_output`: poll now. With it: the descriptor is
+        unwatched (it stays readable until read) and the poll waits for the end of the reader's next wake, so a
+        fix (its parse, the aided filter's update: ~1.5 ms, up to ~6 ms) does not sit between a block handed over
+        and its outputs (#28's p99). The filter fuses the fix a few samples later; it is stamped with its own time
+        (fix.t_s), which the filter fuses it at. The housekeeping tick polls as well: a stalled reader delays
+        a fix by one tick at most."""
+        if self._after_output is None:
+            self.poll()
+            return
+        self._unwatch_fd()              # level-triggered: a watched readable descriptor would wake the loop again
+        if not self._poll_deferred:
+            self._poll_deferred = True
+            self._after_output(self._deferred_poll)
+
+    def _deferred_poll(self) -> None:
+        self._poll_deferred = False
+        self.poll()                     # watches the descriptor again (_follow_fd)
 
     # ------------------------------------------------------------------------------------------ the one loop
     def on_mavlink(self, msg, now: float) -> None:
