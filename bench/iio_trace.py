@@ -31,7 +31,7 @@ READS: list = []          # (start, end, n records) of each IioSource.poll in th
 HANDOVERS: list = []      # (t, newest t_s, n, due_s, served) of each ThreadedSource._hand_over_block
 POLLS: list = []          # (enter, exit, newest t_s or None) of each SampleReader._batch_step's poll
 LONG: list = []           # (start, end, name) of loop callbacks longer than LONG_S
-FIXES: list = []          # (start, end, n fixes) of each GnssTask.poll that delivered a fix (parse, ins, subscribers)
+FIXES: list = []          # (start, end, 1) of each GnssTask.deliver (the validator, the log, ins, the subscribers)
 LONG_S = 0.0005
 
 
@@ -80,16 +80,14 @@ def install() -> None:
     SampleReader._batch_step = traced_step
     from ahrsd.daemon.gnss_task import GnssTask
 
-    gnss_poll = GnssTask.poll
+    deliver = GnssTask.deliver
 
-    def traced_gnss_poll(self):
+    def traced_deliver(self, fix):
         t0 = _now()
-        n = gnss_poll(self)
-        if n:
-            FIXES.append((t0, _now(), n))
-        return n
+        deliver(self, fix)
+        FIXES.append((t0, _now(), 1))
 
-    GnssTask.poll = traced_gnss_poll
+    GnssTask.deliver = traced_deliver
     run = asyncio.events.Handle._run
 
     def traced_run(self):
@@ -158,7 +156,7 @@ def stages(trace: dict, vpe: list[tuple[int, float]], t0: float, t1: float) -> d
             continue
         read_start = reads[i][0]
         t_s = usec * 1e-6
-        # a fix polled inside the step (GnssTask's after_output) runs after the outputs were sent: the step's sent
+        # a fix delivered inside the step (GnssTask's after_output) runs after the outputs were sent: the step's sent
         # time is then where that fix started
         j = bisect.bisect_right(fix_starts, pl[0])
         sent = fixes[j][0] if j < len(fixes) and fixes[j][0] < pl[1] else pl[1]
@@ -184,7 +182,7 @@ FIX_BEFORE_S = 0.010      # a fix processed this long before a sample's time sta
 
 
 def fix_before(fixes: list, fix_ends: list, t_s: float, sent: float, before_s: float = FIX_BEFORE_S) -> float:
-    """The loop's time (s) spent on GNSS fixes (GnssTask.poll that delivered one) between `before_s` before the
+    """The loop's time (s) spent delivering GNSS fixes (GnssTask.deliver) between `before_s` before the
     sample's time stamp and its datagram sent: 0 when no fix ran in that window. With before_s 0: the fixes that ran
     in front of the sample's output, after the sample was ready."""
     import bisect

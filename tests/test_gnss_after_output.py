@@ -1,13 +1,13 @@
 """A GNSS receiver's fix waits behind the outputs due (#28's p99, docs/daemon.md "Session 42 (gnsslat)").
 
-The loop's order of work: when the receiver's descriptor becomes readable, GnssTask unwatches it and asks the sample
-reader to run its poll at the end of the reader's next wake (SampleReader.after_output), after the outputs of the
-samples that wake took were sent. Checked by the order of the calls (a fake loop and a stepped clock for the task; the
+The loop's order of work: when the receiver's descriptor becomes readable, GnssTask reads it at once (each fix stamped
+at its arrival, as before) and asks the sample reader to deliver the fixes at the end of the reader's next wake
+(SampleReader.after_output), after the outputs of the samples that wake took were sent. Checked by the order of the calls (a fake loop and a stepped clock for the task; the
 reader on a real loop with a pipe as its source, ordering only, no figure of time), never by wall time."""
 
 from __future__ import annotations
 
-import asyncio
+import dataclasses
 import os
 
 from ahrsd.core.gnss import make_fix
@@ -20,12 +20,14 @@ from test_reader_wakes import _drive, _hand_over_and_wait, _rig
 
 
 class FdBackend(GnssBackend):
-    """A receiver with a descriptor (a pipe's read end, as a serial port's): `read()` gives the fixes queued."""
+    """A receiver with a descriptor (a pipe's read end, as a serial port's): `read()` gives the fixes queued, each
+    stamped at the clock's time of the read (a serial fix's arrival stamp)."""
 
     description = "a receiver on a descriptor"
 
-    def __init__(self):
+    def __init__(self, clock):
         self.fd, self._w = os.pipe()
+        self.clock = clock
         self.queued: list = []
         self.reads = 0
 
@@ -34,7 +36,7 @@ class FdBackend(GnssBackend):
 
     def read(self):
         self.reads += 1
-        out, self.queued = self.queued, []
+        out, self.queued = [dataclasses.replace(f, t_s=self.clock()) for f in self.queued], []
         return out
 
     def health(self) -> GnssHealth:
@@ -78,64 +80,66 @@ class Hook:
         self.estimator, self.last_estimate = estimator, None
 
 
-FIX = make_fix(10.0, 47.0, 8.0, 500.0, [3.0, -4.0, 0.0], h_acc_m=1.5, v_acc_m=2.5, s_acc_m_s=0.2, num_sats=9)
+FIX = make_fix(0.0, 47.0, 8.0, 500.0, [3.0, -4.0, 0.0], h_acc_m=1.5, v_acc_m=2.5, s_acc_m_s=0.2, num_sats=9)
+
+
+class Clock:
+    t = 10.0
+
+    def __call__(self) -> float:
+        return self.t
 
 
 def _task(after_output):
-    t = [10.0]
-    backend, est, loop = FdBackend(), Recorder(), FakeLoop()
-    task = GnssTask(backend, GnssConfig(), clock=lambda: t[0], estimator=Hook(est), statustext=lambda *a: None)
+    clock = Clock()
+    backend, est, loop = FdBackend(clock), Recorder(), FakeLoop()
+    task = GnssTask(backend, GnssConfig(), clock=clock, estimator=Hook(est), statustext=lambda *a: None)
     task.open(loop, after_output=after_output)
-    return task, backend, est, loop
+    return task, backend, est, loop, clock
 
 
-def test_a_readable_receiver_is_read_after_the_outputs_not_at_once():
+def test_a_readable_receiver_is_read_at_once_and_its_fixes_delivered_after_the_outputs():
     deferred: list = []
-    task, backend, est, loop = _task(deferred.append)
+    task, backend, est, loop, clock = _task(deferred.append)
     try:
         backend.queued = [FIX]
-        loop.readers[backend.fd]()                  # the descriptor became readable
-        assert est.fixes == [] and backend.reads == 0    # nothing read in front of the outputs
-        assert backend.fd not in loop.readers       # unwatched: a level-triggered descriptor would wake the loop again
-        assert len(deferred) == 1
+        loop.readers[backend.fd]()                  # the descriptor became readable at 10.0 s
+        assert backend.reads == 1 and est.fixes == []    # read (stamped) now, nothing delivered in front of the outputs
+        assert backend.fd in loop.readers and len(deferred) == 1
+        clock.t = 10.2
+        backend.queued = [FIX]
+        loop.readers[backend.fd]()                  # the next fix before the reader's wake ended
+        assert backend.reads == 2 and len(deferred) == 1     # one deferred delivery for both
+        clock.t = 10.25
         deferred.pop()()                            # the reader's wake ends: its outputs were sent
-        assert est.fixes == [FIX] and backend.reads == 1
-        assert backend.fd in loop.readers           # watched again for the next fix
-        backend.queued = [make_fix(10.2, 47.0, 8.0, 500.0, [3.0, -4.0, 0.0], h_acc_m=1.5, v_acc_m=2.5,
-                                   s_acc_m_s=0.2, num_sats=9)]
-        loop.readers[backend.fd]()
-        loop.readers.get(backend.fd, lambda: None)()     # (unwatched: no second wake can ask again)
-        assert len(deferred) == 1                   # one deferred poll however often it was readable
-        deferred.pop()()
-        assert [f.t_s for f in est.fixes] == [10.0, 10.2]
+        assert [f.t_s for f in est.fixes] == [10.0, 10.2]    # each with the stamp of its own read, in order
     finally:
         task.close()
 
 
-def test_one_deferred_poll_while_the_tick_watches_the_descriptor_again():
-    """The housekeeping tick polls meanwhile (a stalled reader) and re-watches the descriptor; a second readable
-    wake before the deferred poll ran asks for no second one."""
+def test_the_tick_delivers_the_fixes_waiting_first():
+    """The housekeeping tick polls meanwhile (a stalled reader): the fixes read before go first, then the new ones."""
     deferred: list = []
-    task, backend, est, loop = _task(deferred.append)
+    task, backend, est, loop, clock = _task(deferred.append)
     try:
         backend.queued = [FIX]
         loop.readers[backend.fd]()
-        task.tick(10.1)                             # the tick reads the fix: a reader that does not wake loses none
-        assert est.fixes == [FIX] and backend.fd in loop.readers
-        loop.readers[backend.fd]()
-        assert len(deferred) == 1
+        clock.t = 10.1
+        backend.queued = [FIX]
+        task.tick(10.1)
+        assert [f.t_s for f in est.fixes] == [10.0, 10.1]
         deferred.pop()()
-        assert est.fixes == [FIX]                   # the deferred poll found nothing more
+        assert len(est.fixes) == 2                  # the deferred delivery found nothing more
     finally:
         task.close()
 
 
-def test_without_a_reader_to_wait_for_a_readable_receiver_is_read_at_once():
-    task, backend, est, loop = _task(None)
+def test_without_a_reader_to_wait_for_a_readable_receiver_is_delivered_at_once():
+    task, backend, est, loop, clock = _task(None)
     try:
         backend.queued = [FIX]
         loop.readers[backend.fd]()
-        assert est.fixes == [FIX] and backend.fd in loop.readers
+        assert [f.t_s for f in est.fixes] == [10.0] and backend.fd in loop.readers
     finally:
         task.close()
 
