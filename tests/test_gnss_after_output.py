@@ -16,7 +16,7 @@ from ahrsd.daemon.gnss_task import GnssTask
 from ahrsd.drivers.gnss.backend import GnssBackend, GnssHealth, GnssLinkState
 
 from support.fake_aided import GateCounters, WithoutLeverArmCheck
-from test_reader_wakes import _drive, _hand_over_and_wait, _rig
+from support.pipe_reader import _drive, _hand_over_and_wait, _rig
 
 
 class FdBackend(GnssBackend):
