@@ -31,6 +31,7 @@ READS: list = []          # (start, end, n records) of each IioSource.poll in th
 HANDOVERS: list = []      # (t, newest t_s, n, due_s, served) of each ThreadedSource._hand_over_block
 POLLS: list = []          # (enter, exit, newest t_s or None) of each SampleReader._batch_step's poll
 LONG: list = []           # (start, end, name) of loop callbacks longer than LONG_S
+FIXES: list = []          # (start, end, 1) of each GnssTask.deliver (the validator, the log, ins, the subscribers)
 LONG_S = 0.0005
 
 
@@ -77,6 +78,16 @@ def install() -> None:
             POLLS.append((current["enter"], _now(), current.get("newest")))
 
     SampleReader._batch_step = traced_step
+    from ahrsd.daemon.gnss_task import GnssTask
+
+    deliver = GnssTask.deliver
+
+    def traced_deliver(self, fix):
+        t0 = _now()
+        deliver(self, fix)
+        FIXES.append((t0, _now(), 1))
+
+    GnssTask.deliver = traced_deliver
     run = asyncio.events.Handle._run
 
     def traced_run(self):
@@ -106,7 +117,8 @@ def main() -> int:
     argv = sys.argv[sys.argv.index("--") + 1:]
 
     def dump() -> None:
-        out.write_text(json.dumps({"reads": READS, "handovers": HANDOVERS, "polls": POLLS, "long": LONG}))
+        out.write_text(json.dumps({"reads": READS, "handovers": HANDOVERS, "polls": POLLS, "long": LONG,
+                                   "fixes": FIXES}))
 
     atexit.register(dump)
     install()
@@ -126,7 +138,12 @@ def stages(trace: dict, vpe: list[tuple[int, float]], t0: float, t1: float) -> d
     by_newest_ho = {int(h[1] * 1e6): h for h in trace["handovers"] if h[1] is not None}
     by_newest_poll = {int(p[2] * 1e6): p for p in trace["polls"] if p[2] is not None}
     out: dict[str, list] = {k: [] for k in ("total", "age at read", "read -> hand-over", "hand-over -> loop",
-                                            "loop -> sent", "sent -> arrival", "deadline -> read", "blocking")}
+                                            "loop -> sent", "sent -> arrival", "deadline -> read", "blocking",
+                                            "fix before", "fix in front", "other before")}
+    others = [c for c in trace["long"] if "_batch_step" not in c[2] and "_data_step" not in c[2]]
+    fixes = trace.get("fixes", [])
+    fix_ends = [f[1] for f in fixes]
+    fix_starts = [f[0] for f in fixes]
     longs = [c for c in trace["long"] if "_data_step" not in c[2]]
     for usec, arrival in vpe:
         if not t0 <= arrival <= t1:
@@ -139,6 +156,11 @@ def stages(trace: dict, vpe: list[tuple[int, float]], t0: float, t1: float) -> d
             continue
         read_start = reads[i][0]
         t_s = usec * 1e-6
+        # a fix delivered inside the step (GnssTask's after_output) runs after the outputs were sent: the step's sent
+        # time is then where that fix started
+        j = bisect.bisect_right(fix_starts, pl[0])
+        sent = fixes[j][0] if j < len(fixes) and fixes[j][0] < pl[1] else pl[1]
+        pl = (pl[0], sent, pl[2])
         out["total"].append(arrival - t_s)
         out["age at read"].append(read_start - t_s)
         out["read -> hand-over"].append(ho[0] - read_start)
@@ -149,7 +171,28 @@ def stages(trace: dict, vpe: list[tuple[int, float]], t0: float, t1: float) -> d
             out["deadline -> read"].append(read_start - ho[3])
         # another loop callback (not the block's) that ran while the block waited for the loop
         out["blocking"].append(next((c[2] for c in longs if c[0] < pl[0] and c[1] > ho[0]), ""))
+        out["fix before"].append(fix_before(fixes, fix_ends, t_s, pl[1]))
+        out["fix in front"].append(fix_before(fixes, fix_ends, t_s, pl[1], 0.0))
+        # any other long loop callback (housekeeping, a GNSS poll, inbound MAVLink) in that same window
+        out["other before"].append(next((c[2] for c in others if c[1] > t_s - FIX_BEFORE_S and c[0] < pl[1]), ""))
     return out
+
+
+FIX_BEFORE_S = 0.010      # a fix processed this long before a sample's time stamp can still hold its output back
+
+
+def fix_before(fixes: list, fix_ends: list, t_s: float, sent: float, before_s: float = FIX_BEFORE_S) -> float:
+    """The loop's time (s) spent delivering GNSS fixes (GnssTask.deliver) between `before_s` before the
+    sample's time stamp and its datagram sent: 0 when no fix ran in that window. With before_s 0: the fixes that ran
+    in front of the sample's output, after the sample was ready."""
+    import bisect
+
+    i = bisect.bisect_left(fix_ends, t_s - before_s)
+    busy = 0.0
+    while i < len(fixes) and fixes[i][0] < sent:
+        busy += min(fixes[i][1], sent) - max(fixes[i][0], t_s - before_s)
+        i += 1
+    return busy
 
 
 def stage_table(trace: dict, vpe: list[tuple[int, float]], t0: float, t1: float) -> list[str]:
@@ -158,6 +201,9 @@ def stage_table(trace: dict, vpe: list[tuple[int, float]], t0: float, t1: float)
 
     st = stages(trace, vpe, t0, t1)
     blocking = st.pop("blocking")
+    fix_busy = np.array(st.pop("fix before")) * 1e3
+    in_front = np.array(st.pop("fix in front")) * 1e3 > 0
+    other_before = st.pop("other before")
     n = len(st["total"])
     if not n:
         return ["   trace: no VPE matched"]
@@ -174,6 +220,25 @@ def stage_table(trace: dict, vpe: list[tuple[int, float]], t0: float, t1: float)
         if s:
             slow_blocked[b or "(none: preempted, GIL)"] = slow_blocked.get(b or "(none: preempted, GIL)", 0) + 1
     lines.append(f"     slowest 1 %: the loop busy with {slow_blocked} while the block waited")
+    with_fix = fix_busy > 0
+    slow_other: dict[str, int] = {}
+    for b, s in zip(other_before, slow):
+        if s:
+            slow_other[b or "(none)"] = slow_other.get(b or "(none)", 0) + 1
+    lines.append(f"     slowest 1 %: a loop callback > 0.5 ms from {1e3 * FIX_BEFORE_S:.0f} ms before the sample to its "
+                 f"send: {slow_other}; all VPEs: {100 * np.mean([bool(b) for b in other_before]):.1f} % with one")
+    fixes = [f for f in trace.get("fixes", []) if t0 <= f[0] <= t1]
+    fix_ms = np.array([(b - a) * 1e3 for a, b, _n in fixes]) if fixes else np.zeros(1)
+    lines.append(f"     GNSS fix on the loop from {1e3 * FIX_BEFORE_S:.0f} ms before the sample to its send: slowest 1 % "
+                 f"{int(np.sum(with_fix & slow))} of {int(np.sum(slow))}, all {100 * np.mean(with_fix):.1f} %; "
+                 f"slowest 1 % with one: its fix time mean {np.mean(fix_busy[with_fix & slow]) if np.any(with_fix & slow) else 0:.2f} ms")
+    lines.append(f"     GNSS fix on the loop after the sample was ready, before its send: slowest 1 % "
+                 f"{int(np.sum(in_front & slow))} of {int(np.sum(slow))}, all {100 * np.mean(in_front):.1f} %; p99 of "
+                 f"totals with one {np.percentile(total[in_front] * 1e3, 99) if np.any(in_front) else 0:.3f} ms")
+    lines.append(f"     GNSS fixes: {len(fixes) / (t1 - t0):.1f}/s, loop time a fix p50 / p99 / max {np.percentile(fix_ms, 50):.2f} / "
+                 f"{np.percentile(fix_ms, 99):.2f} / {fix_ms.max():.2f} ms; p99 of totals without a fix before "
+                 f"{np.percentile(total[~with_fix] * 1e3, 99) if np.any(~with_fix) else 0:.3f} ms, with "
+                 f"{np.percentile(total[with_fix] * 1e3, 99) if np.any(with_fix) else 0:.3f} ms")
     window = t1 - t0
     polls = [p for p in trace["polls"] if t0 <= p[0] <= t1]
     lines.append(f"     a second: reads {sum(t0 <= r[0] <= t1 for r in trace['reads']) / window:.1f}, hand-overs "

@@ -4,8 +4,9 @@ Every backend (drivers.gnss.backend.GnssBackend: serial receiver, autopilot MAVL
 receiver) is handled the same way by `poll()`: read the fixes available now, pass each through one
 drivers.gnss.validation.GnssFixValidator (rejections counted and logged by it), log it with its verdict, and
 hand an accepted fix to the estimator's `update_gnss(fix)` when it is aided, then to every subscriber.
-`poll()` runs when the backend's descriptor is readable, from `tick` (housekeeping), right after a MAVLink
-message was offered (`on_mavlink`), and after each batch of replayed samples. Nothing raises out of here: a
+`poll()` runs when the backend's descriptor is readable (given `after_output`: the fixes are read then, and
+delivered at the end of the sample reader's next wake, after its outputs were sent), from `tick` (housekeeping),
+right after a MAVLink message was offered (`on_mavlink`), and after each batch of replayed samples. Nothing raises out of here: a
 failing backend, estimator call or subscriber is counted and logged.
 
 `gnss_backend_for(cfg, ...)` builds the configured backend: the one place that looks at `[gnss] source`.
@@ -177,6 +178,9 @@ class GnssTask:
         self.origin = LocalOrigin()     # LOCAL_POSITION_NED's origin: the first navigation position
         self._loop = None
         self._fd = -1
+        self._after_output = None       # open(after_output=): where a readable descriptor's fixes wait to be delivered
+        self._pending: list[GnssFix] = []   # read and stamped, waiting for the reader's outputs (_on_readable)
+        self._delivery_deferred = False
         self._opened_at = math.inf
         self._shown_state = ""
         self._pending_text = ""
@@ -190,11 +194,14 @@ class GnssTask:
         return self.backend.description
 
     # ------------------------------------------------------------------------------------------ start / stop
-    def open(self, loop=None) -> None:
+    def open(self, loop=None, after_output: Callable[[Callable[[], None]], None] | None = None) -> None:
         """Start the backend (raises on a configuration it refuses, so `ahrsd run` fails at start with the
-        reason) and watch its descriptor on `loop` when it has one."""
+        reason) and watch its descriptor on `loop` when it has one. `after_output(fn)`: runs `fn` once after the
+        next outputs are sent (daemon.sample_reader SampleReader.after_output); given, a readable descriptor's
+        fixes are read and delivered then, not in front of an output that is due (`_on_readable`)."""
         self.backend.start()
         self._loop = loop
+        self._after_output = after_output
         self._follow_fd()
         self._opened_at = self.clock()
         log.info("GNSS: %s", self.description)
@@ -219,7 +226,7 @@ class GnssTask:
             return
         self._unwatch_fd()
         if fd >= 0 and self._loop is not None:
-            self._loop.add_reader(fd, self.poll)
+            self._loop.add_reader(fd, self._on_readable)
             self._fd = fd
 
     def _unwatch_fd(self) -> None:
@@ -229,6 +236,30 @@ class GnssTask:
             except (ValueError, OSError):
                 pass
         self._fd = -1
+
+    def _on_readable(self) -> None:
+        """The backend's descriptor is readable. Without `after_output`: poll now. With it: the bytes are read and
+        the fixes they complete decoded and stamped now (a serial fix's stamp comes from its arrival time,
+        drivers/gnss/receiver_time.py: a late read would bias it), and their delivery (the validator, the log, the
+        aided filter's update: ~1.3 ms a fix, up to ~6 ms, and the subscribers) waits for the end of the reader's
+        next wake, so it does not sit between a block handed over and its outputs (#28's p99). The housekeeping
+        tick delivers them too when it polls first: a stalled reader delays a fix by one tick at most."""
+        if self._after_output is None:
+            self.poll()
+            return
+        fixes = self._read()            # now: each fix stamped at its arrival
+        self._follow_fd()
+        if fixes:
+            self._pending += fixes
+            if not self._delivery_deferred:
+                self._delivery_deferred = True
+                self._after_output(self._deliver_pending)
+
+    def _deliver_pending(self) -> None:
+        self._delivery_deferred = False
+        pending, self._pending = self._pending, []
+        for fix in pending:
+            self.deliver(fix)
 
     # ------------------------------------------------------------------------------------------ the one loop
     def on_mavlink(self, msg, now: float) -> None:
@@ -242,17 +273,23 @@ class GnssTask:
         self.poll()
 
     def poll(self) -> int:
-        """Read the backend and deliver every fix; returns how many it delivered."""
-        try:
-            fixes = self.backend.read()
-        except Exception as exc:  # noqa: BLE001 - read() promises not to raise; a bug must not stop the loop
-            self.counters.source_errors += 1
-            log.error("GNSS read failed: %s", exc)
-            fixes = []
+        """Read the backend and deliver every fix (after those read before and still waiting, `_on_readable`);
+        returns how many it delivered."""
+        fixes = self._read()
+        if self._pending:
+            fixes, self._pending = self._pending + fixes, []
         for fix in fixes:
             self.deliver(fix)
         self._follow_fd()
         return len(fixes)
+
+    def _read(self) -> list[GnssFix]:
+        try:
+            return self.backend.read()
+        except Exception as exc:  # noqa: BLE001 - read() promises not to raise; a bug must not stop the loop
+            self.counters.source_errors += 1
+            log.error("GNSS read failed: %s", exc)
+            return []
 
     def deliver(self, fix) -> None:
         """One fix from the backend: validate, log, then the aided estimator and the subscribers."""

@@ -146,6 +146,25 @@ class SampleReader:
         self.timer = None
         self.done: asyncio.Future | None = None
         self._consecutive_frame_errors = 0
+        self._after_output: list[Callable[[], None]] = []     # after_output's work, for the end of the next wake
+
+    def after_output(self, fn: Callable[[], None]) -> None:
+        """Run `fn()` once at the end of the reader's next wake, after the outputs of the samples it took were sent:
+        work that no output waits for (a GNSS fix's delivery: ~0.7 ms of the loop, up to ~5 ms, docs/daemon.md "Performance")
+        then runs behind the outputs due, not in front of them. A `fn` that raises is logged; the reader goes on.
+        While the reader does not run (not started, stopped, no source) no wake will come: `fn` runs now."""
+        if self.done is None or self.done.done():
+            fn()
+            return
+        self._after_output.append(fn)
+
+    def _run_after_output(self) -> None:
+        work, self._after_output = self._after_output, []
+        for fn in work:
+            try:
+                fn()
+            except Exception:  # noqa: BLE001 - deferred work must not end the reader
+                log.exception("work after the outputs (%r) failed", fn)
 
     async def run(self, loop: asyncio.AbstractEventLoop) -> None:
         self.loop = loop
@@ -208,6 +227,8 @@ class SampleReader:
             if target <= after:
                 target = after + (0.25 * self.period_s if sample is None else 0.0)
             timer.arm(target)
+            if self._after_output:
+                self._run_after_output()        # after the outputs, as in _batch_step
         except Exception as exc:  # noqa: BLE001 - a bug here ends the reader; run() exits non-zero
             if not self.done.done():
                 self.done.set_exception(exc)
@@ -287,6 +308,8 @@ class SampleReader:
                 self.health.empty_read(now)
             out.publish(now)
             source.hand_over_by(out.next_due())
+            if self._after_output:
+                self._run_after_output()        # the outputs above were sent: now the work that waited for them
             after = loop.time()
             if on_data:
                 handle = self._tick_handle

@@ -528,7 +528,8 @@ class Service:
                              subscribers=[lambda fix: self.positions.note_live_position(),
                                           on_first_fix(self.declination.on_gnss_position)],
                              rejection_cause=self.heading_status.rejection_cause)
-        self.gnss.open(self.loop)
+        # a receiver's fix is read after the outputs of the reader's next wake, not in front of them (#28)
+        self.gnss.open(self.loop, after_output=self.reader.after_output if self.source is not None else None)
 
     def _start_status_line(self) -> None:
         """The live status line: `[daemon] status_line` on, or auto on a TTY."""
