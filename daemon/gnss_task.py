@@ -241,9 +241,10 @@ class GnssTask:
         """The backend's descriptor is readable. Without `after_output`: poll now. With it: the bytes are read and
         the fixes they complete decoded and stamped now (a serial fix's stamp comes from its arrival time,
         drivers/gnss/receiver_time.py: a late read would bias it), and their delivery (the validator, the log, the
-        aided filter's update: ~1.3 ms a fix, up to ~6 ms, and the subscribers) waits for the end of the reader's
-        next wake, so it does not sit between a block handed over and its outputs (#28's p99). The housekeeping
-        tick delivers them too when it polls first: a stalled reader delays a fix by one tick at most."""
+        aided filter's update and the subscribers: milliseconds of the loop, docs/daemon.md "Performance") waits for
+        the end of the reader's next wake, so it does not sit between a block handed over and its outputs (#28's
+        p99). The housekeeping tick delivers them too when it polls first: a stalled reader delays a fix by one
+        tick at most."""
         if self._after_output is None:
             self.poll()
             return

@@ -150,7 +150,7 @@ class SampleReader:
 
     def after_output(self, fn: Callable[[], None]) -> None:
         """Run `fn()` once at the end of the reader's next wake, after the outputs of the samples it took were sent:
-        work that no output waits for (a GNSS fix's delivery: ~0.7 ms of the loop, up to ~5 ms, docs/daemon.md "Performance")
+        work that no output waits for (a GNSS fix's delivery: its cost on the loop in docs/daemon.md "Performance")
         then runs behind the outputs due, not in front of them. A `fn` that raises is logged; the reader goes on.
         While the reader does not run (not started, stopped, no source) no wake will come: `fn` runs now."""
         if self.done is None or self.done.done():
